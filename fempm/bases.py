@@ -1,0 +1,204 @@
+"""The two bases of the background grid, both tensor products of 1-D pieces.
+
+* ``Q1``: bilinear Lagrange, one function per grid node (DOLFINx's own Q1 space).
+* ``BSpline2``: quadratic B-splines on the uniform knots of the grid, clamped
+  (open knot vector, the end knots repeated three times) at the walls, so the
+  basis interpolates at the walls and is C1 inside. ``nx + 2`` functions per
+  direction; functions ``i, i+1, i+2`` are non-zero in cell ``i``.
+
+In one direction a basis is stored as polynomial coefficients per cell,
+``N_a(xi) = sum_m c[i, a, m] xi**m`` for the ``k + 1`` functions non-zero in cell
+``i`` (``xi`` in [0, 1]). The 2-D functions of a cell are the products, numbered
+``a + (k + 1) * b`` locally and ``(i + a) + nfx * (j + b)`` globally.
+
+Derivatives are *jets*: ``d^(a+b) N / dxi^a deta^b`` in the cell's reference
+coordinates, i.e. ``h^(a+b)`` times the physical derivative. The jet order is
+listed by :func:`jet_indices`.
+"""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numba
+import numpy as np
+
+from fempm.grid import Grid
+
+__all__ = ["Basis", "BSpline2", "Q1", "jet_indices"]
+
+
+def jet_indices(order: int) -> list[tuple[int, int]]:
+    """Multi-indices ``(a, b)`` of the jet of the given order, in fempm's order.
+
+    Order 1 gives ``[(0, 0), (1, 0), (0, 1)]``: value, d/dxi, d/deta; order 2 adds
+    ``(2, 0), (1, 1), (0, 2)``.
+    """
+    return [(a, s - a) for s in range(order + 1) for a in range(s, -1, -1)]
+
+
+@numba.njit(cache=True)
+def _poly_derivatives(c, xi, order, out):
+    """Values and derivatives up to ``order`` at ``xi`` of polynomials ``c[a, m]``."""
+    n_fun, n_coef = c.shape
+    for a in range(n_fun):
+        for d in range(order + 1):
+            s = 0.0
+            for m in range(d, n_coef):
+                f = 1.0
+                for t in range(d):
+                    f *= m - t
+                s += f * c[a, m] * xi ** (m - d)
+            out[d, a] = s
+
+
+@numba.njit(cache=True)
+def _tabulate(cells, xi, nx, cx, cy, jets, out):
+    """Jets of the (k+1)^2 cell functions at each point (see :meth:`Basis.tabulate`)."""
+    k1 = cx.shape[1]
+    order = 0
+    for q in range(jets.shape[0]):
+        order = max(order, jets[q, 0] + jets[q, 1])
+    vx = np.empty((order + 1, k1))
+    vy = np.empty((order + 1, k1))
+    for p in range(cells.shape[0]):
+        i = cells[p] % nx
+        j = cells[p] // nx
+        _poly_derivatives(cx[i], xi[p, 0], order, vx)
+        _poly_derivatives(cy[j], xi[p, 1], order, vy)
+        for q in range(jets.shape[0]):
+            da, db = jets[q, 0], jets[q, 1]
+            for b in range(k1):
+                for a in range(k1):
+                    out[p, q, a + k1 * b] = vx[da, a] * vy[db, b]
+
+
+class Basis:
+    """A tensor-product basis of degree ``k`` on a :class:`~fempm.grid.Grid`.
+
+    Subclasses set ``degree``, ``lagrange_degree`` (the DOLFINx Lagrange space
+    that contains the basis) and the per-direction coefficient tables.
+    """
+
+    degree: int
+    lagrange_degree: int
+    name: str
+
+    def __init__(self, grid: Grid):
+        self.grid = grid
+        self.coef_x = self._coefficients(grid.nx)
+        self.coef_y = self._coefficients(grid.ny)
+        self.nfx = grid.nx + self.functions_per_direction_extra
+        self.nfy = grid.ny + self.functions_per_direction_extra
+        self.num_functions = self.nfx * self.nfy
+        self.functions_per_cell = (self.degree + 1) ** 2
+
+    functions_per_direction_extra: int
+
+    def _coefficients(self, n: int) -> np.ndarray:
+        raise NotImplementedError
+
+    def cell_functions(self, cells) -> np.ndarray:
+        """Global (structured) indices of the functions non-zero in each cell.
+
+        Shape ``(n, (k+1)^2)``, local number ``a + (k+1) * b``.
+        """
+        cells = np.asarray(cells, dtype=np.int64)
+        k1 = self.degree + 1
+        i, j = cells % self.grid.nx, cells // self.grid.nx
+        a = np.tile(np.arange(k1), k1)
+        b = np.repeat(np.arange(k1), k1)
+        return (i[:, None] + a) + self.nfx * (j[:, None] + b)
+
+    def tabulate(self, cells, xi, order: int = 1) -> np.ndarray:
+        """Jets of the cell functions at points given by cell and reference coordinates.
+
+        Returns:
+            Array ``(n, len(jet_indices(order)), (k+1)^2)``; entry ``[p, q, l]`` is
+            derivative ``jet_indices(order)[q]`` (in reference coordinates) of local
+            function ``l`` of cell ``cells[p]`` at ``xi[p]``.
+        """
+        cells = np.ascontiguousarray(cells, dtype=np.int64)
+        xi = np.ascontiguousarray(xi, dtype=np.float64).reshape(-1, 2)
+        jets = np.array(jet_indices(order), dtype=np.int64)
+        out = np.empty((cells.shape[0], len(jets), self.functions_per_cell))
+        _tabulate(cells, xi, self.grid.nx, self.coef_x, self.coef_y, jets, out)
+        return out
+
+    def anchor_cell(self, functions) -> np.ndarray:
+        """A cell inside the support of each function (the one whose owner owns it)."""
+        f = np.asarray(functions, dtype=np.int64)
+        half = self.degree // 2
+        i = np.clip(f % self.nfx - half, 0, self.grid.nx - 1)
+        j = np.clip(f // self.nfx - half, 0, self.grid.ny - 1)
+        return i + self.grid.nx * j
+
+    @cached_property
+    def integrals(self) -> np.ndarray:
+        """``int N_i dx`` over the whole grid for every function, exact (Gauss)."""
+        pts, wts = np.polynomial.legendre.leggauss(self.degree + 1)
+        pts, wts = 0.5 * (pts + 1.0), 0.5 * wts
+        xi = np.stack(np.meshgrid(pts, pts, indexing="ij"), -1).reshape(-1, 2)
+        w = np.outer(wts, wts).ravel() * self.grid.h**2
+        cells = np.repeat(np.arange(self.grid.num_cells), len(w))
+        values = self.tabulate(cells, np.tile(xi, (self.grid.num_cells, 1)), order=0)[:, 0, :]
+        out = np.zeros(self.num_functions)
+        np.add.at(out, self.cell_functions(cells), values * np.tile(w, self.grid.num_cells)[:, None])
+        return out
+
+
+class Q1(Basis):
+    """Bilinear Lagrange functions on the grid nodes."""
+
+    degree = 1
+    lagrange_degree = 1
+    name = "Q1"
+    functions_per_direction_extra = 1
+
+    def _coefficients(self, n: int) -> np.ndarray:
+        c = np.zeros((n, 2, 2))
+        c[:, 0] = [1.0, -1.0]  # 1 - xi
+        c[:, 1] = [0.0, 1.0]  # xi
+        return c
+
+
+def _bspline_values(knots: np.ndarray, degree: int, t: np.ndarray) -> np.ndarray:
+    """All B-splines of an open knot vector at points ``t`` (Cox-de Boor), shape (n, m)."""
+    n_fun = len(knots) - degree - 1
+    last = knots[-1]
+    # degree 0: indicator of [t_i, t_{i+1}); the last non-empty span is closed.
+    b = np.zeros((len(t), len(knots) - 1))
+    for i in range(len(knots) - 1):
+        if knots[i + 1] > knots[i]:
+            inside = (t >= knots[i]) & ((t < knots[i + 1]) | ((knots[i + 1] == last) & (t == last)))
+            b[inside, i] = 1.0
+    for p in range(1, degree + 1):
+        nb = np.zeros((len(t), len(knots) - 1 - p))
+        for i in range(len(knots) - 1 - p):
+            d1 = knots[i + p] - knots[i]
+            d2 = knots[i + p + 1] - knots[i + 1]
+            if d1 > 0:
+                nb[:, i] += (t - knots[i]) / d1 * b[:, i]
+            if d2 > 0:
+                nb[:, i] += (knots[i + p + 1] - t) / d2 * b[:, i + 1]
+        b = nb
+    return b[:, :n_fun]
+
+
+class BSpline2(Basis):
+    """Quadratic B-splines, clamped at the walls, C1 across interior cell edges."""
+
+    degree = 2
+    lagrange_degree = 2
+    name = "B-spline"
+    functions_per_direction_extra = 2
+
+    def _coefficients(self, n: int) -> np.ndarray:
+        knots = np.concatenate([[0.0, 0.0], np.arange(n + 1.0), [n, n]])
+        samples = np.array([0.25, 0.5, 0.75])  # inside the span: no end-point ambiguity
+        vandermonde_inv = np.linalg.inv(np.vander(samples, 3, increasing=True))
+        c = np.zeros((n, 3, 3))
+        for i in range(n):
+            values = _bspline_values(knots, 2, i + samples)[:, i : i + 3]  # (samples, functions)
+            c[i] = (vandermonde_inv @ values).T
+        return c

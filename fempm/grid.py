@@ -1,0 +1,144 @@
+"""The background grid: a structured, axis-aligned mesh of square quadrilaterals.
+
+Cells are numbered structurally, ``cell = i + nx * j`` with ``(i, j)`` the column
+and row counted from the lower-left corner. A point is located by arithmetic,
+``i = floor((x - x0) / h)``, in O(1) per point. The DOLFINx mesh of the same cells
+is distributed over the ranks by DOLFINx's partitioner; ``owner`` and
+``local_cell`` translate between the structured numbering and DOLFINx's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from mpi4py import MPI
+
+import dolfinx.mesh
+
+from fempm.errors import InputError, ParticleOutsideGridError
+
+__all__ = ["Grid"]
+
+# Points within this fraction of a cell outside the grid (round-off of a
+# position on a wall) are taken to lie on the wall.
+_WALL_TOLERANCE = 1e-10
+
+
+def _whole_cells(length: float, h: float, name: str) -> int:
+    n = round(length / h)
+    if n < 1 or abs(n * h - length) > 1e-9 * length:
+        raise InputError(
+            f"grid: the {name} ({length:g}) is not a whole number of cells of size h = {h:g}"
+        )
+    return int(n)
+
+
+class Grid:
+    """A rectangle ``[x0, x1] x [y0, y1]`` cut into square cells of size ``h``.
+
+    Args:
+        comm: MPI communicator the DOLFINx mesh is distributed over.
+        lower: ``(x0, y0)``.
+        upper: ``(x1, y1)``.
+        h: cell size; the width and height must be whole multiples of it.
+
+    Attributes:
+        mesh: the DOLFINx quadrilateral mesh.
+        nx, ny: cells per direction.
+        owner: ``owner[cell]`` is the rank owning each structured cell.
+        local_cell: ``local_cell[cell]`` is the local DOLFINx cell index on this
+            rank, or -1 where this rank does not own the cell.
+        owned_cells: structured indices of the cells this rank owns, in DOLFINx's
+            local order.
+    """
+
+    def __init__(self, comm: MPI.Comm, lower, upper, h: float):
+        lower = np.asarray(lower, dtype=np.float64)
+        upper = np.asarray(upper, dtype=np.float64)
+        if lower.shape != (2,) or upper.shape != (2,):
+            raise InputError("grid: lower and upper must be pairs (x, y)")
+        if not (np.isfinite(h) and h > 0):
+            raise InputError(f"grid: the cell size h must be positive, got {h}")
+        if np.any(upper <= lower):
+            raise InputError(f"grid: upper {upper.tolist()} must exceed lower {lower.tolist()}")
+        self.comm = comm
+        self.lower, self.upper, self.h = lower, upper, float(h)
+        self.nx = _whole_cells(upper[0] - lower[0], h, "width")
+        self.ny = _whole_cells(upper[1] - lower[1], h, "height")
+        self.num_cells = self.nx * self.ny
+        self.mesh = dolfinx.mesh.create_rectangle(
+            comm,
+            [lower, upper],
+            [self.nx, self.ny],
+            dolfinx.mesh.CellType.quadrilateral,
+            ghost_mode=dolfinx.mesh.GhostMode.none,
+        )
+        n_owned = self.mesh.topology.index_map(2).size_local
+        mid = dolfinx.mesh.compute_midpoints(self.mesh, 2, np.arange(n_owned, dtype=np.int32))
+        ij = np.floor((mid[:, :2] - lower) / self.h).astype(np.int64)
+        self.owned_cells = ij[:, 0] + self.nx * ij[:, 1]
+        self.local_cell = np.full(self.num_cells, -1, dtype=np.int32)
+        self.local_cell[self.owned_cells] = np.arange(n_owned, dtype=np.int32)
+        owned_by_rank = comm.allgather(self.owned_cells)
+        self.owner = np.empty(self.num_cells, dtype=np.int32)
+        for rank, cells in enumerate(owned_by_rank):
+            self.owner[cells] = rank
+
+    @classmethod
+    def from_cells(cls, comm: MPI.Comm, lower, upper, cells) -> "Grid":
+        """A grid given by its number of cells per direction; the cells must be square."""
+        lower = np.asarray(lower, dtype=np.float64)
+        upper = np.asarray(upper, dtype=np.float64)
+        nx, ny = (int(n) for n in cells)
+        if nx < 1 or ny < 1:
+            raise InputError(f"grid: the number of cells must be positive, got {cells}")
+        hx, hy = (upper[0] - lower[0]) / nx, (upper[1] - lower[1]) / ny
+        if abs(hx - hy) > 1e-9 * max(hx, hy):
+            raise InputError(
+                f"grid: cells must be square, but {nx} x {ny} cells over "
+                f"{upper[0] - lower[0]:g} x {upper[1] - lower[1]:g} give hx = {hx:g}, hy = {hy:g}"
+            )
+        return cls(comm, lower, upper, hx)
+
+    def cell_index(self, i, j):
+        """Structured cell number of column ``i`` and row ``j``."""
+        return np.asarray(i) + self.nx * np.asarray(j)
+
+    def cell_origin(self, cells) -> np.ndarray:
+        """Lower-left corners of the given structured cells, shape ``(n, 2)``."""
+        cells = np.asarray(cells)
+        return self.lower + self.h * np.stack([cells % self.nx, cells // self.nx], axis=-1)
+
+    def locate(self, x: np.ndarray, ids: np.ndarray | None = None):
+        """Structured cell and reference coordinates in ``[0, 1]^2`` of each point.
+
+        Args:
+            x: positions, shape ``(n, 2)``.
+            ids: particle ids used in the error message (default: row numbers).
+
+        Raises:
+            ParticleOutsideGridError: a point is outside the grid or not finite;
+                the message names the first offending point and how many there are.
+        """
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 2)
+        bad = self.outside(x)
+        if np.any(bad):
+            k = np.flatnonzero(bad)
+            label = ids[k[0]] if ids is not None else k[0]
+            raise ParticleOutsideGridError(
+                f"particle {label} at ({x[k[0], 0]:.6g}, {x[k[0], 1]:.6g}) is outside the grid "
+                f"[{self.lower[0]:g}, {self.upper[0]:g}] x [{self.lower[1]:g}, {self.upper[1]:g}]"
+                + (f" ({len(k)} particles in all)" if len(k) > 1 else "")
+            )
+        s = (x - self.lower) / self.h
+        n = np.array([self.nx, self.ny])
+        ij = np.clip(np.floor(s).astype(np.int64), 0, n - 1)
+        xi = np.clip(s - ij, 0.0, 1.0)
+        return ij[:, 0] + self.nx * ij[:, 1], xi
+
+    def outside(self, x: np.ndarray) -> np.ndarray:
+        """Boolean mask of the points outside the grid (or not finite)."""
+        s = (np.asarray(x, dtype=np.float64).reshape(-1, 2) - self.lower) / self.h
+        n = np.array([self.nx, self.ny])
+        return ~np.all(np.isfinite(s), axis=1) | np.any(
+            (s < -_WALL_TOLERANCE) | (s > n + _WALL_TOLERANCE), axis=1
+        )

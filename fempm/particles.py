@@ -1,0 +1,267 @@
+"""Material points: a struct-of-arrays store, seeding, location and migration.
+
+Every particle is held by the rank that owns the grid cell it lies in, and the
+particles of a rank are kept sorted by (cell, id) so that sums over particles
+are taken in the same order whatever the number of ranks.
+
+Standard fields: ``x`` (position), ``volume``, ``mass``, ``velocity``,
+``acceleration``, ``id`` (a stable integer); more are added with
+:meth:`Particles.add_field` (``density`` is added by seeding).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fempm.errors import InputError, ParticleOutsideGridError
+from fempm.grid import Grid
+
+__all__ = ["Particles", "Polygon", "Rectangle"]
+
+
+@dataclass(frozen=True)
+class Rectangle:
+    """The rectangle ``[x0, x1] x [y0, y1]``."""
+
+    lower: tuple[float, float]
+    upper: tuple[float, float]
+
+    def __post_init__(self):
+        if not np.all(np.asarray(self.upper, float) > np.asarray(self.lower, float)):
+            raise InputError(f"rectangle: upper {self.upper} must exceed lower {self.lower}")
+
+    def contains(self, x: np.ndarray) -> np.ndarray:
+        """Boolean mask of the points inside (boundary included)."""
+        lo, up = np.asarray(self.lower), np.asarray(self.upper)
+        return np.all((x >= lo) & (x <= up), axis=1)
+
+    def bounds(self):
+        """``(lower, upper)`` corners of the bounding box."""
+        return np.asarray(self.lower, float), np.asarray(self.upper, float)
+
+
+@dataclass(frozen=True)
+class Polygon:
+    """A simple polygon given by its vertices in order (even-odd inside test)."""
+
+    vertices: tuple[tuple[float, float], ...]
+
+    def __post_init__(self):
+        v = np.asarray(self.vertices, dtype=float)
+        if v.ndim != 2 or v.shape[0] < 3 or v.shape[1] != 2:
+            raise InputError("polygon: needs at least three (x, y) vertices")
+        area = 0.5 * np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])
+        if abs(area) == 0.0:
+            raise InputError("polygon: the vertices enclose no area")
+
+    def contains(self, x: np.ndarray) -> np.ndarray:
+        """Boolean mask of the points inside."""
+        v = np.asarray(self.vertices, dtype=float)
+        inside = np.zeros(len(x), dtype=bool)
+        for (xa, ya), (xb, yb) in zip(v, np.roll(v, -1, axis=0)):
+            crosses = (ya > x[:, 1]) != (yb > x[:, 1])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                x_cross = xa + (x[:, 1] - ya) * (xb - xa) / (yb - ya)
+            inside ^= crosses & (x[:, 0] < x_cross)
+        return inside
+
+    def bounds(self):
+        """``(lower, upper)`` corners of the bounding box."""
+        v = np.asarray(self.vertices, dtype=float)
+        return v.min(axis=0), v.max(axis=0)
+
+
+_STANDARD = {"x": (2,), "volume": (), "mass": (), "velocity": (2,), "acceleration": (2,)}
+
+
+class Particles:
+    """The particles held by this rank, as a struct of arrays.
+
+    Args:
+        grid: the background grid.
+        on_exit: what :meth:`relocate` does with a particle outside the grid:
+            ``"error"`` (default) raises :class:`ParticleOutsideGridError` naming it;
+            ``"delete"`` removes it and adds its mass to :attr:`lost_mass`.
+
+    Attributes:
+        fields: every per-particle array by name, first axis the particle.
+        cell, xi: structured cell and reference coordinates, set by :meth:`relocate`.
+        lost_mass, lost_count: mass and number of particles deleted on this rank.
+    """
+
+    def __init__(self, grid: Grid, on_exit: str = "error"):
+        if on_exit not in ("error", "delete"):
+            raise InputError(f"particles: on_exit must be 'error' or 'delete', got {on_exit!r}")
+        self.grid = grid
+        self.on_exit = on_exit
+        self.fields: dict[str, np.ndarray] = {
+            name: np.zeros((0, *shape)) for name, shape in _STANDARD.items()
+        }
+        self.fields["id"] = np.zeros(0, dtype=np.int64)
+        self.cell = np.zeros(0, dtype=np.int64)
+        self.xi = np.zeros((0, 2))
+        self.lost_mass = 0.0
+        self.lost_count = 0
+        self.version = 0  # incremented by every relocate(); caches key on it
+        self._bodies: list = []
+        self._next_id = 0
+
+    # -- access ------------------------------------------------------------------
+    def __len__(self) -> int:
+        return len(self.fields["id"])
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        try:
+            return self.fields[name]
+        except KeyError:
+            raise KeyError(
+                f"particles have no field {name!r}; they have {sorted(self.fields)}"
+            ) from None
+
+    @property
+    def x(self) -> np.ndarray:
+        """Positions, shape ``(n, 2)``."""
+        return self.fields["x"]
+
+    @property
+    def id(self) -> np.ndarray:
+        """Stable global ids."""
+        return self.fields["id"]
+
+    def add_field(self, name: str, shape: tuple[int, ...] = (), value=0.0) -> np.ndarray:
+        """Add a per-particle array ``name`` of the given value shape, filled with ``value``."""
+        if name in self.fields:
+            raise InputError(f"particles: field {name!r} exists already")
+        self.fields[name] = np.full((len(self), *shape), value, dtype=np.float64)
+        return self.fields[name]
+
+    def global_count(self) -> int:
+        """Number of particles on all ranks."""
+        return self.grid.comm.allreduce(len(self))
+
+    # -- seeding ------------------------------------------------------------------
+    def seed(self, body, per_cell: int, density: float, **values) -> int:
+        """Add ``per_cell x per_cell`` particles per cell, at sub-cell centres inside ``body``.
+
+        Sub-cell centres already inside an earlier body are skipped (bodies are
+        unions). Ids are ``offset + cell * per_cell**2 + sub``, independent of the
+        number of ranks. Only this rank's cells are seeded.
+
+        Args:
+            body: a :class:`Rectangle` or :class:`Polygon` inside the grid.
+            per_cell: particles per cell and direction.
+            density: mass density; ``volume = h**2 / per_cell**2``, ``mass = density * volume``.
+            **values: initial values of other fields (scalars or per-component sequences).
+
+        Returns:
+            The number of particles seeded on all ranks.
+        """
+        if int(per_cell) != per_cell or per_cell < 1:
+            raise InputError(f"seed: particles per cell must be a positive integer, got {per_cell}")
+        if not (np.isfinite(density) and density > 0):
+            raise InputError(f"seed: density must be positive, got {density}")
+        lo, up = body.bounds()
+        tol = 1e-9 * self.grid.h
+        if np.any(lo < self.grid.lower - tol) or np.any(up > self.grid.upper + tol):
+            raise InputError(
+                f"seed: body with bounds {lo.tolist()}..{up.tolist()} is not inside the grid "
+                f"{self.grid.lower.tolist()}..{self.grid.upper.tolist()}"
+            )
+        n = int(per_cell)
+        g = self.grid
+        sub = (np.arange(n) + 0.5) / n
+        sub_xi = np.stack(np.meshgrid(sub, sub, indexing="xy"), -1).reshape(-1, 2)
+        cells = np.sort(g.owned_cells)
+        x = (g.cell_origin(cells)[:, None, :] + g.h * sub_xi[None]).reshape(-1, 2)
+        keep = body.contains(x)
+        for earlier in self._bodies:
+            keep &= ~earlier.contains(x)
+        ids = (self._next_id + cells[:, None] * n * n + np.arange(n * n)).ravel()[keep]
+        x = x[keep]
+        volume = g.h**2 / n**2
+        new = {name: np.zeros((len(x), *a.shape[1:]), dtype=a.dtype) for name, a in self.fields.items()}
+        new["x"][:] = x
+        new["volume"][:] = volume
+        new["mass"][:] = density * volume
+        new["id"][:] = ids
+        if "density" not in self.fields:
+            self.add_field("density")
+            new["density"] = np.zeros(len(x))
+        new["density"][:] = density
+        for name, value in values.items():
+            if name not in self.fields:
+                raise InputError(f"seed: unknown particle field {name!r}; add it with add_field first")
+            new[name][:] = value
+        self._append(new)
+        self._bodies.append(body)
+        self._next_id += g.num_cells * n * n
+        self.relocate()
+        return self.grid.comm.allreduce(len(x))
+
+    def _append(self, new: dict[str, np.ndarray]):
+        for name in self.fields:
+            self.fields[name] = np.concatenate([self.fields[name], new[name]])
+
+    def _take(self, index: np.ndarray):
+        for name in self.fields:
+            self.fields[name] = self.fields[name][index]
+        self.cell = self.cell[index]
+        self.xi = self.xi[index]
+
+    # -- validation, location, migration --------------------------------------------
+    def check(self):
+        """Raise a clear error for a non-finite position or a non-positive volume or mass."""
+        for name in ("volume", "mass"):
+            bad = ~(self.fields[name] > 0)
+            if np.any(bad):
+                k = np.flatnonzero(bad)[0]
+                raise InputError(
+                    f"particle {self.id[k]}: {name} must be positive, got {self.fields[name][k]}"
+                )
+        bad = ~np.all(np.isfinite(self.x), axis=1)
+        if np.any(bad):
+            k = np.flatnonzero(bad)[0]
+            raise ParticleOutsideGridError(
+                f"particle {self.id[k]} has a non-finite position ({self.x[k, 0]}, {self.x[k, 1]})"
+            )
+
+    def relocate(self):
+        """Locate every particle, send it to the rank owning its cell, sort by (cell, id).
+
+        Particles outside the grid raise :class:`ParticleOutsideGridError` or, with
+        ``on_exit="delete"``, are removed and counted in :attr:`lost_mass`.
+        """
+        self.check()
+        outside = self.grid.outside(self.x)
+        if np.any(outside) and self.on_exit == "delete":
+            self.lost_mass += float(self.fields["mass"][outside].sum())
+            self.lost_count += int(outside.sum())
+            keep = np.flatnonzero(~outside)
+            for name in self.fields:
+                self.fields[name] = self.fields[name][keep]
+        self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
+        self._migrate()
+        self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
+        order = np.lexsort((self.id, self.cell))
+        self._take(order)
+        self.version += 1
+
+    def _migrate(self):
+        comm = self.grid.comm
+        if comm.size == 1:
+            return
+        dest = self.grid.owner[self.cell]
+        order = np.argsort(dest, kind="stable")
+        counts = np.bincount(dest, minlength=comm.size)
+        recv_counts = np.empty_like(counts)
+        comm.Alltoall(counts, recv_counts)
+        received = {}
+        for name, a in self.fields.items():
+            a = np.ascontiguousarray(a[order])
+            width = int(np.prod(a.shape[1:], dtype=np.int64))
+            out = np.empty((recv_counts.sum(), *a.shape[1:]), dtype=a.dtype)
+            comm.Alltoallv([a, counts * width], [out, recv_counts * width])
+            received[name] = out
+        self.fields = received

@@ -1,0 +1,496 @@
+"""Particle quadrature of UFL forms: the particles are the quadrature points.
+
+A weak form is written once, as a Python function of a :class:`Symbols` object
+that hands out the UFL objects (test and trial functions, per-particle fields,
+grid functions, constants, the measure ``dx``)::
+
+    def mass(s):
+        rho = s.particle("density")
+        return rho * ufl.inner(s.trial, s.test) * s.dx
+
+The same function is compiled for two integration targets:
+
+* :class:`ParticleForm` -- ``sum_p V_p f(x_p)``: the integral with the particles
+  as quadrature points and their volumes as weights. The form is compiled by
+  DOLFINx/FFCx, once, on a *jet cell*: an h x h square whose reference origin is
+  put on the particle, carrying an element whose degrees of freedom are the
+  value and the derivatives at that origin. A one-point rule (the origin, weight 1)
+  makes the kernel return the integrand's tensor in terms of the jets of the test
+  and trial functions at the particle; :mod:`fempm.assembly` contracts it with
+  the jets of the grid basis (Q1 or B-spline) and assembles into PETSc. This is
+  exact for any integrand, polynomial or not, on any basis.
+* :class:`GaussForm` -- the ordinary DOLFINx assembly with Gauss quadrature on the
+  Lagrange space that contains the basis, restricted by extraction
+  (``P^T A_L P``): the FEM reference, and the oracle of the exactness tests.
+
+On the particle target ``s.particle(name)`` is the particle's own value; on the
+Gauss target it is a field at the Gauss points given by a callable of ``x``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from collections.abc import Callable, Mapping
+
+import basix
+import basix.ufl
+import numpy as np
+import ufl
+from cffi import FFI
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import dolfinx.fem
+import dolfinx.fem.petsc
+import dolfinx.la
+import dolfinx.mesh
+
+from fempm import assembly
+from fempm.bases import jet_indices
+from fempm.errors import InputError
+from fempm.lagrange import extraction_matrix, lagrange_element, lagrange_space
+from fempm.space import GridFunction, Space
+
+__all__ = ["GaussForm", "ParticleForm", "Symbols"]
+
+FormBuilder = Callable[["Symbols"], ufl.Form]
+
+_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2"]}
+_KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
+_ffi = FFI()
+
+
+# --------------------------------------------------------------------------------------
+# The jet cell
+# --------------------------------------------------------------------------------------
+def jet_element(order: int):
+    """Scalar element on the reference square whose dofs are ``d^(a+b) f / dX^a dY^b (0, 0)``.
+
+    The dual basis is ``X^a Y^b / (a! b!)`` for ``a + b <= order``, in the order of
+    :func:`fempm.bases.jet_indices`; all dofs are interior (the element is discontinuous).
+    """
+    cell = basix.CellType.quadrilateral
+    alphas = jet_indices(order)
+    pts, wts = basix.make_quadrature(cell, 2 * order + 2)
+    legendre = basix.tabulate_polynomials(basix.PolynomialType.legendre, cell, order, pts)
+    from math import factorial
+
+    monomials = np.array(
+        [pts[:, 0] ** a * pts[:, 1] ** b / (factorial(a) * factorial(b)) for a, b in alphas]
+    )
+    wcoeffs = (monomials * wts) @ legendre.T
+    n_derivs = (order + 1) * (order + 2) // 2
+    M = np.zeros((len(alphas), 1, 1, n_derivs))
+    for k, (a, b) in enumerate(alphas):
+        M[k, 0, 0, basix.index(a, b)] = 1.0
+    none_x = np.zeros((0, 2))
+    none_m = np.zeros((0, 1, 0, n_derivs))
+    x = [[none_x] * 4, [none_x] * 4, [np.zeros((1, 2))]]
+    m = [[none_m] * 4, [none_m] * 4, [M]]
+    return basix.ufl.custom_element(
+        cell, [], wcoeffs, x, m, order, basix.MapType.identity, basix.SobolevSpace.L2,
+        False, 0, order,
+    )
+
+
+class _JetCell:
+    """A one-cell DOLFINx mesh of size h x h and the spaces the particle target needs."""
+
+    def __init__(self, h: float, order: int):
+        self.h, self.order = h, order
+        self.mesh = dolfinx.mesh.create_rectangle(
+            MPI.COMM_SELF, [[0.0, 0.0], [h, h]], [1, 1], dolfinx.mesh.CellType.quadrilateral
+        )
+        self.jet = jet_element(order)
+        self.num_jets = len(jet_indices(order))
+
+    def space(self, fields: dict[str, int]) -> dolfinx.fem.FunctionSpace:
+        """Jet space of a field layout: blocked per field, mixed if several."""
+        parts = [basix.ufl.blocked_element(self.jet, shape=(n,)) if n > 1 else self.jet for n in fields.values()]
+        element = parts[0] if len(parts) == 1 else basix.ufl.mixed_element(parts)
+        return dolfinx.fem.functionspace(self.mesh, element)
+
+    def dof_index(self, fields: dict[str, int]) -> np.ndarray:
+        """``index[C, a]``: element dof of component ``C`` (over all fields) and jet ``a``."""
+        out, offset = [], 0
+        for n in fields.values():
+            for c in range(n):
+                out.append([offset + a * n + c for a in range(self.num_jets)])
+            offset += n * self.num_jets
+        return np.array(out, dtype=np.int64)
+
+
+def _derivative_order(form: ufl.Form) -> int:
+    """Highest number of nested gradients acting on a function in the form."""
+    from ufl.algorithms import expand_derivatives
+    from ufl.classes import Grad, ReferenceGrad
+    from ufl.corealg.traversal import unique_pre_traversal
+
+    order = 0
+    for integral in expand_derivatives(form).integrals():
+        for node in unique_pre_traversal(integral.integrand()):
+            depth = 0
+            while isinstance(node, (Grad, ReferenceGrad)):
+                depth, node = depth + 1, node.ufl_operands[0]
+            order = max(order, depth)
+    return order
+
+
+# --------------------------------------------------------------------------------------
+# Symbols: the UFL objects a form is written with
+# --------------------------------------------------------------------------------------
+class Symbols:
+    """The UFL objects a weak form is written with, for one integration target.
+
+    Attributes:
+        trial, test: trial and test functions; a tuple with one entry per field for a
+            space with several fields (``(u, p), (v, q) = s.trial, s.test``).
+        dx: the integration measure (particles, or Gauss points).
+        x: the spatial coordinate.
+        h: the grid cell size (a number).
+    """
+
+    def __init__(self, target, space: Space, particle_shapes, grid_functions, constants):
+        self._target = target
+        self._particle_shapes = dict(particle_shapes)
+        self._grid_functions = dict(grid_functions)
+        self._constants = dict(constants)
+        self.used: dict[ufl.Coefficient, tuple[str, str]] = {}
+        self.used_constants: dict[ufl.Constant, str] = {}
+        self._cache: dict[tuple[str, str], object] = {}
+        V = target.space(space.fields)
+        self.function_space = V
+        self.trial = self._split(ufl.TrialFunction(V), space.fields)
+        self.test = self._split(ufl.TestFunction(V), space.fields)
+        self.dx = target.dx
+        self.x = ufl.SpatialCoordinate(target.mesh)
+        self.h = space.grid.h
+
+    @staticmethod
+    def _split(u, fields):
+        return ufl.split(u) if len(fields) > 1 else u
+
+    def particle(self, name: str):
+        """The per-particle field ``name`` (a number per particle, or a vector/tensor)."""
+        if name not in self._particle_shapes:
+            raise InputError(
+                f"form uses particle field {name!r}, but the particles have {sorted(self._particle_shapes)}"
+            )
+        key = ("particle", name)
+        if key not in self._cache:
+            f = self._target.particle_coefficient(name, self._particle_shapes[name])
+            self._cache[key] = f
+            self.used[f] = key
+        return self._cache[key]
+
+    def grid(self, name: str):
+        """The grid function ``name`` (whole; split a multi-field one with ``ufl.split``)."""
+        if name not in self._grid_functions:
+            raise InputError(
+                f"form uses grid function {name!r}, but only {sorted(self._grid_functions)} were given"
+            )
+        key = ("grid", name)
+        if key not in self._cache:
+            f = self._target.grid_coefficient(name, self._grid_functions[name].space.fields)
+            self._cache[key] = f
+            self.used[f] = key
+        return self._cache[key]
+
+    def constant(self, name: str):
+        """The constant ``name`` (its value is read from the constants mapping at assembly)."""
+        if name not in self._constants:
+            raise InputError(f"form uses constant {name!r}, but only {sorted(self._constants)} were given")
+        key = ("constant", name)
+        if key not in self._cache:
+            c = dolfinx.fem.Constant(self._target.mesh, np.asarray(self._constants[name], dtype=np.float64))
+            self._cache[key] = c
+            self.used_constants[c] = name
+        return self._cache[key]
+
+
+class _ParticleTarget:
+    """Where ``s.dx`` means the particles (see the module docstring)."""
+
+    def __init__(self, jet_cell: _JetCell):
+        self.jet_cell = jet_cell
+        self.mesh = jet_cell.mesh
+        rule = {
+            "quadrature_rule": "custom",
+            "quadrature_points": np.zeros((1, 2)),
+            "quadrature_weights": np.ones(1),
+        }
+        self.dx = ufl.Measure("dx", domain=self.mesh, metadata=rule)
+        self._spaces: dict[tuple, dolfinx.fem.FunctionSpace] = {}
+
+    def space(self, fields):
+        key = tuple(fields.items())
+        if key not in self._spaces:
+            self._spaces[key] = self.jet_cell.space(fields)
+        return self._spaces[key]
+
+    def particle_coefficient(self, name, shape):
+        element = basix.ufl.element("DG", self.mesh.basix_cell(), 0, shape=shape)
+        return dolfinx.fem.Function(dolfinx.fem.functionspace(self.mesh, element), name=f"particle:{name}")
+
+    def grid_coefficient(self, name, fields):
+        return dolfinx.fem.Function(self.space(fields), name=f"grid:{name}")
+
+
+class _GaussTarget:
+    """Where ``s.dx`` means Gauss quadrature of a given degree on the grid."""
+
+    def __init__(self, space: Space, degree: int):
+        self.grid_space = space
+        self.mesh = space.grid.mesh
+        self.degree = degree
+        self.dx = ufl.Measure("dx", domain=self.mesh, metadata={"quadrature_degree": degree})
+        self._spaces: dict[tuple, dolfinx.fem.FunctionSpace] = {}
+
+    def space(self, fields):
+        key = tuple(fields.items())
+        if key not in self._spaces:
+            self._spaces[key] = lagrange_space(self.grid_space, fields)
+        return self._spaces[key]
+
+    def particle_coefficient(self, name, shape):
+        element = basix.ufl.quadrature_element(self.mesh.basix_cell(), value_shape=shape, degree=self.degree)
+        return dolfinx.fem.Function(dolfinx.fem.functionspace(self.mesh, element), name=f"particle:{name}")
+
+    def grid_coefficient(self, name, fields):
+        return dolfinx.fem.Function(self.space(fields), name=f"grid:{name}")
+
+
+def _check_cell_integrals(form: ufl.Form):
+    kinds = {integral.integral_type() for integral in form.integrals()}
+    if kinds - {"cell"}:
+        raise InputError(f"fempm forms integrate over cells (dx) only; this form has {sorted(kinds)}")
+
+
+def _constant_array(constants: Mapping, used: dict) -> np.ndarray:
+    return np.concatenate(
+        [np.ravel(np.asarray(constants[name], dtype=np.float64)) for name in used.values()]
+        or [np.zeros(1)]
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Particle quadrature
+# --------------------------------------------------------------------------------------
+class ParticleForm:
+    """A UFL form integrated with the particles as quadrature points, compiled once.
+
+    Args:
+        builder: function of :class:`Symbols` returning a UFL form (rank 0, 1 or 2).
+        space: the space of the test and trial functions.
+        particle_shapes: value shape of every per-particle field the form may use,
+            e.g. ``{"density": (), "velocity": (2,)}``; or pass a
+            :class:`~fempm.particles.Particles` to take them from its fields.
+        grid_functions: grid functions by name; their values are read at assembly.
+        constants: constants by name; the mapping is read at every assembly, so
+            changing a value in it (e.g. the time step) needs no recompilation.
+    """
+
+    def __init__(
+        self,
+        builder: FormBuilder,
+        space: Space,
+        particle_shapes=None,
+        grid_functions: Mapping[str, GridFunction] | None = None,
+        constants: Mapping | None = None,
+    ):
+        if hasattr(particle_shapes, "fields"):
+            particle_shapes = {k: v.shape[1:] for k, v in particle_shapes.fields.items()}
+        self.space = space
+        self.grid_functions = grid_functions if grid_functions is not None else {}
+        self.constants = constants if constants is not None else {}
+        for name, gf in self.grid_functions.items():
+            if gf.space.basis is not space.basis:
+                raise InputError(f"grid function {name!r} is on another basis than the form's space")
+        shapes = particle_shapes or {}
+        order = 1
+        while True:
+            target = _ParticleTarget(_JetCell(space.grid.h, order))
+            symbols = Symbols(target, space, shapes, self.grid_functions, self.constants)
+            form = builder(symbols)
+            _check_cell_integrals(form)
+            needed = max(_derivative_order(form), 1)
+            if needed <= order:
+                break
+            if needed > 2:
+                raise InputError(f"fempm jets go to second derivatives; the form takes {needed}")
+            order = needed
+        self.order = order
+        self.ufl_form = form
+        self.symbols = symbols
+        self.rank = len(form.arguments())
+        self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
+        ufcx = self._compiled.ufcx_form
+        if ufcx.form_integral_offsets[1] - ufcx.form_integral_offsets[0] != 1:
+            raise InputError("a particle form must have a single cell integral over all of dx")
+        address = int(_ffi.cast("intptr_t", ufcx.form_integrals[0].tabulate_tensor_float64))
+        self._kernel = _KERNEL_TYPE(address)
+        original = form.coefficients()
+        self._coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
+        self._perm = target.jet_cell.dof_index(space.fields)
+        self._jet_cell = target.jet_cell
+
+    # -- coefficient packing ---------------------------------------------------------
+    def _pack(self, particles, phi, lfun) -> np.ndarray:
+        n = len(particles)
+        blocks = []
+        for coefficient in self._coefficients:
+            kind, name = self.symbols.used[coefficient]
+            if kind == "particle":
+                blocks.append(particles[name].reshape(n, -1))
+            else:
+                gf = self.grid_functions[name]
+                jets = np.empty((n, phi.shape[1], gf.space.bs))
+                assembly.jets_at_particles(phi, lfun, gf.values, jets)
+                index = self._jet_cell.dof_index(gf.space.fields)  # [C, a] -> element dof
+                block = np.empty((n, index.size))
+                block[:, index.T.ravel()] = jets.reshape(n, -1)
+                blocks.append(block)
+        if not blocks:
+            return np.zeros((n, 1))
+        return np.ascontiguousarray(np.concatenate(blocks, axis=1))
+
+    def _particle_data(self, particles):
+        cache = getattr(particles, "_tabulation", None)
+        key = (particles.version, id(self.space.basis), self.order)
+        if cache is None or cache[0] != key:
+            phi = self.space.basis.tabulate(particles.cell, particles.xi, self.order)
+            lfun = self.space.local_functions_of_cells(particles.cell)
+            particles._tabulation = (key, phi, lfun)
+            cache = particles._tabulation
+        _, phi, lfun = cache
+        weight = particles["volume"] / self.space.grid.h**2
+        coeffs = self._pack(particles, phi, lfun)
+        consts = _constant_array(self.constants, self.symbols.used_constants)
+        return phi, lfun, weight, coeffs, consts
+
+    # -- assembly --------------------------------------------------------------------
+    def assemble_matrix(self, particles, A: PETSc.Mat | None = None) -> PETSc.Mat:
+        """The matrix ``A_ij = sum_p V_p a(phi_j, phi_i)(x_p)``, assembled (zeroed first if given)."""
+        self._require_rank(2)
+        if A is None:
+            A = self.space.create_matrix()
+        A.zeroEntries()
+        phi, lfun, weight, coeffs, consts = self._particle_data(particles)
+        assembly.assemble_matrix(
+            self._kernel, A.handle, particles.x, particles.cell, weight, phi, lfun,
+            coeffs, consts, self._perm, self.space.grid.h,
+        )
+        A.assemble()
+        return A
+
+    def assemble_vector(self, particles, b: dolfinx.la.Vector | None = None) -> dolfinx.la.Vector:
+        """The vector ``b_i = sum_p V_p L(phi_i)(x_p)``; owned entries complete, ghosts zero."""
+        self._require_rank(1)
+        if b is None:
+            b = self.space.create_vector()
+        b.array[:] = 0.0
+        phi, lfun, weight, coeffs, consts = self._particle_data(particles)
+        assembly.assemble_vector(
+            self._kernel, b.array, particles.x, particles.cell, weight, phi, lfun,
+            coeffs, consts, self._perm, self.space.grid.h,
+        )
+        b.scatter_reverse(dolfinx.la.InsertMode.add)
+        return b
+
+    def assemble_scalar(self, particles) -> float:
+        """``sum_p V_p f(x_p)`` over the particles of all ranks."""
+        self._require_rank(0)
+        _, _, weight, coeffs, consts = self._particle_data(particles)
+        local = assembly.assemble_scalar(self._kernel, particles.x, weight, coeffs, consts, self.space.grid.h)
+        return self.space.comm.allreduce(local)
+
+    def _require_rank(self, rank: int):
+        if self.rank != rank:
+            names = {0: "a functional", 1: "a linear form", 2: "a bilinear form"}
+            raise InputError(f"this form is {names[self.rank]}, not {names[rank]}")
+
+
+# --------------------------------------------------------------------------------------
+# Ordinary Gauss quadrature (FEM reference)
+# --------------------------------------------------------------------------------------
+class GaussForm:
+    """The same UFL form assembled by DOLFINx with Gauss quadrature, restricted to the basis.
+
+    Args:
+        builder, space, grid_functions, constants: as for :class:`ParticleForm`.
+        particle_values: value of each per-particle field the form uses, as a
+            callable of the points ``x`` (shape ``(3, n)``) or a number.
+        degree: degree of the Gauss rule (default exact for products of two
+            basis functions and their derivatives with a basis-degree coefficient).
+    """
+
+    def __init__(
+        self,
+        builder: FormBuilder,
+        space: Space,
+        particle_values: Mapping | None = None,
+        grid_functions: Mapping[str, GridFunction] | None = None,
+        constants: Mapping | None = None,
+        degree: int | None = None,
+    ):
+        self.space = space
+        self.particle_values = dict(particle_values or {})
+        self.grid_functions = grid_functions if grid_functions is not None else {}
+        self.constants = constants if constants is not None else {}
+        self.degree = degree if degree is not None else 3 * space.basis.degree + 1
+        target = _GaussTarget(space, self.degree)
+        shapes = {name: np.shape(v(np.zeros((3, 1))))[:-1] if callable(v) else np.shape(v)
+                  for name, v in self.particle_values.items()}
+        self.symbols = Symbols(target, space, shapes, self.grid_functions, self.constants)
+        self.ufl_form = builder(self.symbols)
+        _check_cell_integrals(self.ufl_form)
+        self.rank = len(self.ufl_form.arguments())
+        self._compiled = dolfinx.fem.form(self.ufl_form, jit_options=_JIT_OPTIONS)
+        self._lagrange = target.space(space.fields)
+        self.P = extraction_matrix(space, self._lagrange)
+        self._grid_extraction = {
+            coefficient: extraction_matrix(self.grid_functions[name].space, coefficient.function_space)
+            for coefficient, (kind, name) in self.symbols.used.items()
+            if kind == "grid"
+        }
+        self._fill_particle_values()
+
+    def _fill_particle_values(self):
+        for coefficient, (kind, name) in self.symbols.used.items():
+            if kind != "particle":
+                continue
+            value = self.particle_values[name]
+            if callable(value):
+                coefficient.interpolate(value)
+            else:
+                coefficient.x.array.reshape(-1, max(1, int(np.prod(np.shape(value)))))[:] = np.ravel(value)
+                coefficient.x.scatter_forward()
+
+    def _update(self):
+        for coefficient, P in self._grid_extraction.items():
+            _, name = self.symbols.used[coefficient]
+            P.mult(self.grid_functions[name].vector.petsc_vec, coefficient.x.petsc_vec)
+            coefficient.x.scatter_forward()
+        for constant, name in self.symbols.used_constants.items():
+            constant.value = np.asarray(self.constants[name], dtype=np.float64)
+
+    def assemble_matrix(self) -> PETSc.Mat:
+        """``P^T A_L P`` with ``A_L`` DOLFINx's Gauss assembly on the Lagrange space."""
+        self._update()
+        A_L = dolfinx.fem.petsc.assemble_matrix(self._compiled)
+        A_L.assemble()
+        return A_L.PtAP(self.P)
+
+    def assemble_vector(self) -> PETSc.Vec:
+        """``P^T b_L`` with ``b_L`` DOLFINx's Gauss assembly on the Lagrange space."""
+        self._update()
+        b_L = dolfinx.fem.petsc.assemble_vector(self._compiled)
+        b_L.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        b = self.P.createVecRight()
+        self.P.multTranspose(b_L, b)
+        return b
+
+    def assemble_scalar(self) -> float:
+        """The functional by Gauss quadrature over all ranks."""
+        self._update()
+        return self.space.comm.allreduce(dolfinx.fem.assemble_scalar(self._compiled))

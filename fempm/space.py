@@ -1,0 +1,264 @@
+"""Equal-order function spaces on a basis, their parallel numbering and PETSc objects.
+
+A :class:`Space` is one basis carrying named fields, e.g. ``{"u": 2, "p": 1}``
+for velocity and pressure. Its unknowns are interleaved per basis function,
+``dof = bs * function + component`` with ``bs`` the total number of components,
+so every matrix has block size ``bs`` and a field is a stride of the vector.
+
+Parallel layout: a basis function is owned by the rank owning its anchor cell
+(:meth:`fempm.bases.Basis.anchor_cell`). A rank's local functions are its owned
+ones, numbered contiguously in the global numbering, followed by the ghosts: the
+functions non-zero in its cells but owned elsewhere. The numbering is kept in a
+DOLFINx ``IndexMap``, so vectors are DOLFINx ``la.Vector`` objects whose
+``petsc_vec`` is a ghosted PETSc vector.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from petsc4py import PETSc
+
+import dolfinx.la
+from dolfinx.common import IndexMap
+
+from fempm.bases import Basis
+from fempm.errors import InputError
+
+__all__ = ["GridFunction", "Numbering", "Space", "Support"]
+
+
+class Numbering:
+    """Parallel numbering of the functions of a basis (shared by all its spaces).
+
+    Attributes:
+        owner: rank owning each structured function.
+        global_index: global number of each structured function.
+        local_functions: structured indices of this rank's owned then ghost functions.
+        local_index: local number of each structured function, -1 if not local.
+        index_map: the DOLFINx ``IndexMap`` (block size 1) of the functions.
+    """
+
+    def __init__(self, basis: Basis):
+        grid = basis.grid
+        comm = grid.comm
+        nf = basis.num_functions
+        structured = np.arange(nf, dtype=np.int64)
+        self.owner = grid.owner[basis.anchor_cell(structured)]
+        by_owner = np.lexsort((structured, self.owner))
+        self.global_index = np.empty(nf, dtype=np.int64)
+        self.global_index[by_owner] = structured
+        owned = by_owner[self.owner[by_owner] == comm.rank]
+        touched = np.unique(basis.cell_functions(grid.owned_cells))
+        ghosts = touched[self.owner[touched] != comm.rank]
+        self.num_owned = len(owned)
+        self.local_functions = np.concatenate([owned, ghosts])
+        self.local_index = np.full(nf, -1, dtype=np.int32)
+        self.local_index[self.local_functions] = np.arange(len(self.local_functions), dtype=np.int32)
+        self.index_map = IndexMap(
+            comm, self.num_owned, self.global_index[ghosts], self.owner[ghosts].astype(np.int32), 0
+        )
+
+    @property
+    def num_local(self) -> int:
+        """Owned plus ghost functions on this rank."""
+        return len(self.local_functions)
+
+
+def numbering(basis: Basis) -> Numbering:
+    """The (cached) parallel numbering of a basis."""
+    if not hasattr(basis, "_numbering"):
+        basis._numbering = Numbering(basis)
+    return basis._numbering
+
+
+@dataclass
+class Support:
+    """Which functions carry particles, for one particle configuration.
+
+    Attributes:
+        local: boolean per local function (owned and ghost): some particle lies
+            in a cell of its support, on any rank.
+        active_dofs: global indices of this rank's owned dofs with support.
+        unsupported_dofs: global indices of this rank's owned dofs without.
+    """
+
+    local: np.ndarray
+    active_dofs: np.ndarray
+    unsupported_dofs: np.ndarray
+
+    def active_is(self, comm) -> PETSc.IS:
+        """The active owned dofs as a PETSc index set."""
+        return PETSc.IS().createGeneral(self.active_dofs.astype(PETSc.IntType), comm=comm)
+
+
+class Space:
+    """Named fields of given component counts on one basis, unknowns interleaved.
+
+    Args:
+        basis: :class:`~fempm.bases.Q1` or :class:`~fempm.bases.BSpline2`.
+        fields: mapping of field name to number of components, in order;
+            e.g. ``{"u": 2, "p": 1}``. Default: one scalar field ``"u"``.
+    """
+
+    def __init__(self, basis: Basis, fields: dict[str, int] | None = None):
+        fields = dict(fields or {"u": 1})
+        for name, n in fields.items():
+            if int(n) != n or n < 1:
+                raise InputError(f"space: field {name!r} needs a positive number of components, got {n}")
+        self.basis = basis
+        self.grid = basis.grid
+        self.comm = basis.grid.comm
+        self.fields = {name: int(n) for name, n in fields.items()}
+        self.bs = sum(self.fields.values())
+        self.numbering = numbering(basis)
+
+    def __repr__(self) -> str:
+        return f"Space({self.basis.name}, {self.fields})"
+
+    def field_offset(self, name: str) -> int:
+        """First component of field ``name`` within a block of ``bs`` dofs."""
+        offset = 0
+        for field, n in self.fields.items():
+            if field == name:
+                return offset
+            offset += n
+        raise InputError(f"space has no field {name!r}; its fields are {list(self.fields)}")
+
+    def field_dofs(self, name: str) -> np.ndarray:
+        """Global indices of this rank's owned dofs of field ``name`` (all its components)."""
+        first = self.field_offset(name)
+        owned = self.numbering.global_index[self.numbering.local_functions[: self.numbering.num_owned]]
+        comps = np.arange(first, first + self.fields[name])
+        return (self.bs * owned[:, None] + comps).ravel()
+
+    @property
+    def num_owned_dofs(self) -> int:
+        """Dofs owned by this rank."""
+        return self.numbering.num_owned * self.bs
+
+    @property
+    def num_global_dofs(self) -> int:
+        """Dofs on all ranks."""
+        return self.basis.num_functions * self.bs
+
+    @cached_property
+    def local_to_global(self) -> np.ndarray:
+        """Global index of every local (owned, then ghost) dof."""
+        g = self.numbering.global_index[self.numbering.local_functions]
+        return (self.bs * g[:, None] + np.arange(self.bs)).ravel()
+
+    @cached_property
+    def lgmap(self) -> PETSc.LGMap:
+        """PETSc local-to-global map of the dofs."""
+        return PETSc.LGMap().create(self.local_to_global.astype(PETSc.IntType), comm=self.comm)
+
+    def local_functions_of_cells(self, cells: np.ndarray) -> np.ndarray:
+        """Local function numbers of the functions non-zero in each (local) cell."""
+        return self.numbering.local_index[self.basis.cell_functions(cells)]
+
+    # -- PETSc objects --------------------------------------------------------------
+    def sparsity(self) -> tuple[np.ndarray, np.ndarray]:
+        """CSR pattern (row pointer, global columns) of this rank's owned rows.
+
+        Two functions couple when their supports share a cell: indices within
+        ``degree`` of each other in both directions. The pattern covers every
+        cell, so it never changes as particles move.
+        """
+        b, num = self.basis, self.numbering
+        k = b.degree
+        owned = num.local_functions[: num.num_owned]
+        i, j = owned % b.nfx, owned // b.nfx
+        d = np.arange(-k, k + 1)
+        di, dj = np.repeat(d, len(d)), np.tile(d, len(d))
+        ni, nj = i[:, None] + di, j[:, None] + dj
+        valid = (ni >= 0) & (ni < b.nfx) & (nj >= 0) & (nj < b.nfy)
+        neighbour = np.where(valid, num.global_index[np.where(valid, ni + b.nfx * nj, 0)], -1)
+        neighbour = np.sort(np.where(valid, neighbour, np.iinfo(np.int64).max), axis=1)
+        count = valid.sum(axis=1)
+        # expand functions to dofs: row (f, c) has columns bs*g + c' for every neighbour g
+        bs = self.bs
+        flat = neighbour[np.arange(neighbour.shape[1])[None, :] < count[:, None]]
+        per_function = (bs * flat[:, None] + np.arange(bs)).ravel()  # one column list per f
+        block_start = np.concatenate([[0], np.cumsum(count * bs)])[:-1]
+        row_len = np.repeat(count * bs, bs)
+        indptr = np.concatenate([[0], np.cumsum(row_len)])
+        shift = np.repeat(np.repeat(block_start, bs) - indptr[:-1], row_len)
+        indices = per_function[np.arange(indptr[-1]) + shift]
+        return indptr, indices
+
+    def create_matrix(self) -> PETSc.Mat:
+        """A PETSc AIJ matrix with the full-grid sparsity and the local-to-global map set."""
+        indptr, indices = self.sparsity()
+        n, big_n = self.num_owned_dofs, self.num_global_dofs
+        A = PETSc.Mat().create(comm=self.comm)
+        A.setSizes(((n, big_n), (n, big_n)), bsize=self.bs)
+        A.setType(PETSc.Mat.Type.AIJ)
+        A.setPreallocationCSR((indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType)))
+        A.setLGMap(self.lgmap, self.lgmap)
+        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        A.zeroEntries()
+        A.assemble()
+        return A
+
+    def create_vector(self) -> dolfinx.la.Vector:
+        """A DOLFINx vector with ghosts (``.array`` is owned then ghost dofs)."""
+        return dolfinx.la.vector(self.numbering.index_map, self.bs)
+
+    # -- particle support -------------------------------------------------------------
+    def support(self, particles) -> Support:
+        """Which functions have a particle in some cell of their support, on any rank."""
+        flag = dolfinx.la.vector(self.numbering.index_map, 1)
+        occupied = np.unique(particles.cell)
+        flag.array[:] = 0.0
+        flag.array[np.unique(self.local_functions_of_cells(occupied))] = 1.0
+        flag.scatter_reverse(dolfinx.la.InsertMode.add)
+        flag.scatter_forward()
+        local = flag.array > 0
+        owned_global = self.local_to_global[: self.num_owned_dofs]
+        owned_active = np.repeat(local[: self.numbering.num_owned], self.bs)
+        return Support(local, owned_global[owned_active], owned_global[~owned_active])
+
+
+class GridFunction:
+    """Coefficients of a :class:`Space` on this rank's local functions (owned and ghost).
+
+    ``values`` has shape ``(num_local_functions, bs)``; after changing owned
+    values call :meth:`scatter_forward` to update the ghosts.
+    """
+
+    def __init__(self, space: Space, name: str = "f"):
+        self.space = space
+        self.name = name
+        self.vector = space.create_vector()
+
+    @property
+    def values(self) -> np.ndarray:
+        """View of the local coefficients, shape ``(num_local_functions, bs)``."""
+        return self.vector.array.reshape(-1, self.space.bs)
+
+    def field(self, name: str) -> np.ndarray:
+        """View of the components of one field, shape ``(num_local_functions, ncomp)``."""
+        first = self.space.field_offset(name)
+        return self.values[:, first : first + self.space.fields[name]]
+
+    def scatter_forward(self):
+        """Copy owned values to the ghosts on other ranks."""
+        self.vector.scatter_forward()
+
+    def scatter_reverse_add(self):
+        """Add ghost contributions into their owners (after a local accumulation)."""
+        self.vector.scatter_reverse(dolfinx.la.InsertMode.add)
+
+    def evaluate(self, cells: np.ndarray, xi: np.ndarray, order: int = 0) -> np.ndarray:
+        """Jets of the function at points on this rank's cells.
+
+        Returns:
+            ``(n, len(jet_indices(order)), bs)``; derivatives are with respect to the
+            reference coordinates (divide by ``h**(a+b)`` for physical ones).
+        """
+        phi = self.space.basis.tabulate(cells, xi, order)
+        lf = self.space.local_functions_of_cells(cells)
+        return np.einsum("pql,plc->pqc", phi, self.values[lf])
