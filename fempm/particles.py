@@ -104,7 +104,7 @@ class Particles:
         self.xi = np.zeros((0, 2))
         self.lost_mass = 0.0
         self.lost_count = 0
-        self.version = 0  # incremented by every relocate(); caches key on it
+        self.cache: dict = {}  # data that holds until the particles move (tabulations)
         self._bodies: list = []
         self._next_id = 0
 
@@ -179,26 +179,46 @@ class Particles:
         for earlier in self._bodies:
             keep &= ~earlier.contains(x)
         ids = (self._next_id + cells[:, None] * n * n + np.arange(n * n)).ravel()[keep]
-        x = x[keep]
-        volume = g.h**2 / n**2
-        new = {name: np.zeros((len(x), *a.shape[1:]), dtype=a.dtype) for name, a in self.fields.items()}
+        self._bodies.append(body)
+        self._next_id += g.num_cells * n * n
+        return self.add_points(x[keep], g.h**2 / n**2, density, ids=ids, **values)
+
+    def add_points(self, x, volume, density: float = 1.0, ids=None, **values) -> int:
+        """Add particles at the given positions (on any rank; they move to their owners).
+
+        Args:
+            x: positions, shape ``(n, 2)``.
+            volume: volume of each particle (a number or one per particle).
+            density: mass density (a number or one per particle); ``mass = density * volume``.
+            ids: global ids; by default the next unused ones, numbered rank by rank.
+            **values: initial values of other existing fields.
+
+        Returns:
+            The number of particles added on all ranks.
+        """
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 2)
+        n = len(x)
+        comm = self.grid.comm
+        if ids is None:
+            first = comm.exscan(n) if comm.size > 1 else 0
+            ids = self._next_id + (first or 0) + np.arange(n)
+            self._next_id += comm.allreduce(n)
+        new = {name: np.zeros((n, *a.shape[1:]), dtype=a.dtype) for name, a in self.fields.items()}
         new["x"][:] = x
         new["volume"][:] = volume
-        new["mass"][:] = density * volume
         new["id"][:] = ids
         if "density" not in self.fields:
             self.add_field("density")
-            new["density"] = np.zeros(len(x))
+            new["density"] = np.zeros(n)
         new["density"][:] = density
+        new["mass"][:] = new["density"] * new["volume"]
         for name, value in values.items():
             if name not in self.fields:
-                raise InputError(f"seed: unknown particle field {name!r}; add it with add_field first")
+                raise InputError(f"particles: unknown field {name!r}; add it with add_field first")
             new[name][:] = value
         self._append(new)
-        self._bodies.append(body)
-        self._next_id += g.num_cells * n * n
         self.relocate()
-        return self.grid.comm.allreduce(len(x))
+        return comm.allreduce(n)
 
     def _append(self, new: dict[str, np.ndarray]):
         for name in self.fields:
@@ -246,7 +266,7 @@ class Particles:
         self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
         order = np.lexsort((self.id, self.cell))
         self._take(order)
-        self.version += 1
+        self.cache.clear()
 
     def _migrate(self):
         comm = self.grid.comm

@@ -355,14 +355,8 @@ class ParticleForm:
         return np.ascontiguousarray(np.concatenate(blocks, axis=1))
 
     def _particle_data(self, particles):
-        cache = getattr(particles, "_tabulation", None)
-        key = (particles.version, id(self.space.basis), self.order)
-        if cache is None or cache[0] != key:
-            phi = self.space.basis.tabulate(particles.cell, particles.xi, self.order)
-            lfun = self.space.local_functions_of_cells(particles.cell)
-            particles._tabulation = (key, phi, lfun)
-            cache = particles._tabulation
-        _, phi, lfun = cache
+        phi, lfun = self.space.tabulate_particles(particles, self.order)
+        phi = np.ascontiguousarray(phi)
         weight = particles["volume"] / self.space.grid.h**2
         coeffs = self._pack(particles, phi, lfun)
         consts = _constant_array(self.constants, self.symbols.used_constants)

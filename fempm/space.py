@@ -134,6 +134,25 @@ class Space:
         comps = np.arange(first, first + self.fields[name])
         return (self.bs * owned[:, None] + comps).ravel()
 
+    def wall_dofs(self, name: str, component: int, walls: str = "lrbt") -> np.ndarray:
+        """Global indices of owned dofs of one component of a field on the given walls.
+
+        ``walls`` is any of ``l``, ``r``, ``b``, ``t`` (left, right, bottom, top). Both
+        bases interpolate at the walls, so fixing these coefficients fixes the
+        field's values there.
+        """
+        b, num = self.basis, self.numbering
+        owned = num.local_functions[: num.num_owned]
+        i, j = owned % b.nfx, owned // b.nfx
+        on = np.zeros(len(owned), dtype=bool)
+        for wall, mask in (("l", i == 0), ("r", i == b.nfx - 1), ("b", j == 0), ("t", j == b.nfy - 1)):
+            if wall in walls:
+                on |= mask
+        first = self.field_offset(name)
+        if not 0 <= component < self.fields[name]:
+            raise InputError(f"field {name!r} has {self.fields[name]} components, not {component + 1}")
+        return self.bs * num.global_index[owned[on]] + first + component
+
     @property
     def num_owned_dofs(self) -> int:
         """Dofs owned by this rank."""
@@ -158,6 +177,26 @@ class Space:
     def local_functions_of_cells(self, cells: np.ndarray) -> np.ndarray:
         """Local function numbers of the functions non-zero in each (local) cell."""
         return self.numbering.local_index[self.basis.cell_functions(cells)]
+
+    def tabulate_particles(self, particles, order: int = 1) -> tuple[np.ndarray, np.ndarray]:
+        """Jets of the basis at the particles and their local function numbers.
+
+        Cached on the particles until they are relocated; a cached higher order
+        serves a lower one (jets are listed by total order).
+
+        Returns:
+            ``phi`` of shape ``(n, len(jet_indices(order)), (k+1)^2)`` and
+            ``lfun`` of shape ``(n, (k+1)^2)``.
+        """
+        num_jets = (order + 1) * (order + 2) // 2
+        for cached_order in (order, order + 1, order + 2):
+            hit = particles.cache.get((id(self.basis), cached_order))
+            if hit is not None:
+                return hit[0][:, :num_jets], hit[1]
+        phi = self.basis.tabulate(particles.cell, particles.xi, order)
+        lfun = self.local_functions_of_cells(particles.cell)
+        particles.cache[(id(self.basis), order)] = (phi, lfun)
+        return phi, lfun
 
     # -- PETSc objects --------------------------------------------------------------
     def sparsity(self) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,92 @@
+"""Particle-to-grid (P2G) and grid-to-particle (G2P) transfers.
+
+With ``N_i`` the basis functions and ``p`` the particles:
+
+* P2G of a particle quantity ``q_p`` with weight ``w_p``: ``Q_i = sum_p w_p q_p N_i(x_p)``;
+  the lumped mass is ``m_i = sum_p m_p N_i(x_p)`` (the row sums of the particle
+  mass matrix ``sum_p m_p N_i N_j``, the basis being a partition of unity) and the
+  momentum ``(m v)_i = sum_p m_p v_p N_i(x_p)``.
+* G2P: ``f(x_p) = sum_i f_i N_i(x_p)`` and ``grad f(x_p) = sum_i f_i grad N_i(x_p)``.
+* The smoothed density of method.md eq. (2):
+  ``rho~_i = sum_p W_i(x_p) m_p`` with ``W_i = N_i / int N_i dx``.
+
+Sums over particles on several ranks meet at the owners of the functions.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from fempm.assembly import jets_at_particles
+from fempm.space import GridFunction, Space
+
+__all__ = [
+    "grid_to_particles",
+    "grid_gradient_to_particles",
+    "lumped_mass",
+    "momentum",
+    "particles_to_grid",
+    "smoothed_density",
+]
+
+
+@numba.njit(cache=True)
+def _scatter(phi0, lfun, values, out):
+    """``out[lfun[p, l], c] += phi0[p, l] * values[p, c]`` over particles ``p``."""
+    for p in range(phi0.shape[0]):
+        for l in range(phi0.shape[1]):
+            f = lfun[p, l]
+            for c in range(values.shape[1]):
+                out[f, c] += phi0[p, l] * values[p, c]
+
+
+def particles_to_grid(space: Space, particles, values, name: str = "p2g") -> GridFunction:
+    """``Q_i = sum_p values_p N_i(x_p)`` for ``values`` of shape ``(n,)`` or ``(n, bs)``."""
+    values = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(len(particles), -1))
+    if values.shape[1] != space.bs:
+        raise ValueError(f"P2G: {values.shape[1]} components given for a space of {space.bs}")
+    phi, lfun = space.tabulate_particles(particles, order=0)
+    out = GridFunction(space, name)
+    _scatter(np.ascontiguousarray(phi[:, 0, :]), lfun, values, out.values)
+    out.scatter_reverse_add()
+    out.scatter_forward()
+    return out
+
+
+def lumped_mass(space: Space, particles) -> GridFunction:
+    """Nodal masses ``m_i = sum_p m_p N_i(x_p)`` on a scalar space."""
+    return particles_to_grid(space, particles, particles["mass"], "mass")
+
+
+def momentum(space: Space, particles) -> GridFunction:
+    """Nodal momenta ``sum_p m_p v_p N_i(x_p)`` on a two-component space."""
+    return particles_to_grid(space, particles, particles["mass"][:, None] * particles["velocity"], "momentum")
+
+
+def smoothed_density(space: Space, particles) -> GridFunction:
+    """``rho~_i = sum_p m_p N_i(x_p) / int N_i dx`` (method.md eq. 2) on a scalar space."""
+    rho = lumped_mass(space, particles)
+    integrals = space.basis.integrals[space.numbering.local_functions]
+    rho.values[:, 0] /= integrals
+    rho.name = "smoothed density"
+    return rho
+
+
+def _jets(gf: GridFunction, particles, order: int) -> np.ndarray:
+    phi, lfun = gf.space.tabulate_particles(particles, order)
+    phi = np.ascontiguousarray(phi)
+    out = np.empty((len(particles), phi.shape[1], gf.space.bs))
+    jets_at_particles(phi, lfun, np.ascontiguousarray(gf.values), out)
+    return out
+
+
+def grid_to_particles(gf: GridFunction, particles) -> np.ndarray:
+    """Values ``sum_i f_i N_i(x_p)`` at the particles, shape ``(n, bs)``."""
+    return _jets(gf, particles, 0)[:, 0, :]
+
+
+def grid_gradient_to_particles(gf: GridFunction, particles) -> np.ndarray:
+    """Physical gradients at the particles, shape ``(n, bs, 2)``: ``[p, c, d] = d f_c / d x_d``."""
+    jets = _jets(gf, particles, 1)
+    return np.transpose(jets[:, 1:3, :], (0, 2, 1)) / gf.space.grid.h

@@ -1,0 +1,75 @@
+"""Small builders shared by the tests (particle layouts and the forms under test)."""
+
+import basix
+import numpy as np
+import ufl
+from petsc4py import PETSc
+
+import fempm
+
+
+def particles_at_gauss_points(grid, degree, density=lambda x: 1.0 + 0 * x[:, 0]):
+    """Particles at the Gauss points of every cell, volumes = Gauss weights."""
+    pts, wts = basix.make_quadrature(basix.CellType.quadrilateral, degree)
+    cells = grid.owned_cells
+    x = (grid.cell_origin(cells)[:, None, :] + grid.h * pts[None]).reshape(-1, 2)
+    particles = fempm.Particles(grid)
+    particles.add_field("velocity_gradient", (2, 2))
+    particles.add_points(x, np.tile(wts, len(cells)) * grid.h**2, density=density(x))
+    return particles
+
+
+def random_particles(grid, counts_per_cell, seed=0):
+    """In each owned cell a given number of particles (cycled), random positions and volumes."""
+    rng = np.random.default_rng(seed + grid.comm.rank)
+    cells = np.sort(grid.owned_cells)
+    counts = np.resize(np.asarray(counts_per_cell), len(cells))
+    cell_of = np.repeat(cells, counts)
+    x = grid.cell_origin(cell_of) + grid.h * rng.random((len(cell_of), 2))
+    particles = fempm.Particles(grid)
+    volume = grid.h**2 * (0.2 + rng.random(len(x)))
+    particles.add_points(x, volume, density=1000.0 * (0.5 + rng.random(len(x))))
+    return particles
+
+
+def eps(w):
+    return ufl.sym(ufl.grad(w))
+
+
+# The forms of the method, one term each (method.md eq. 1), on a space {"u": 2, "p": 1}.
+def mass(s):
+    (u, _), (v, _) = s.trial, s.test
+    return s.particle("density") * ufl.inner(u, v) * s.dx
+
+
+def viscous(s):
+    (u, _), (v, _) = s.trial, s.test
+    return 2 * s.constant("mu") * ufl.inner(eps(u), eps(v)) * s.dx
+
+
+def divergence(s):
+    (u, p), (v, q) = s.trial, s.test
+    return (-p * ufl.div(v) + q * ufl.div(u)) * s.dx
+
+
+def pspg(s):
+    (u, p), (v, q) = s.trial, s.test
+    tau = s.constant("tau")
+    rho = s.particle("density")
+    return tau * (ufl.inner(ufl.grad(p), ufl.grad(q)) + rho * ufl.inner(u, ufl.grad(q))) * s.dx
+
+
+BILINEAR = {"mass": mass, "viscous": viscous, "divergence": divergence, "pspg": pspg}
+CONSTANTS = {"mu": 1.0e-3, "tau": 1.0e-4}
+
+
+def relative_difference(A, B):
+    """||A - B|| / ||B|| (Frobenius) of two PETSc matrices or vectors."""
+    D = A.copy()
+    D.axpy(-1.0, B)
+    return D.norm() / B.norm()
+
+
+def to_dense(A):
+    """A serial PETSc matrix as a dense numpy array."""
+    return A.convert(PETSc.Mat.Type.DENSE).getDenseArray().copy()

@@ -1,0 +1,68 @@
+"""The background grid: arithmetic point location and its errors."""
+
+import numpy as np
+import pytest
+
+import fempm
+from fempm.errors import InputError, ParticleOutsideGridError
+
+
+def test_locate_matches_cell_geometry(comm):
+    grid = fempm.Grid(comm, (-1.0, 0.5), (2.0, 2.0), 0.25)
+    assert (grid.nx, grid.ny) == (12, 6)
+    rng = np.random.default_rng(0)
+    x = grid.lower + rng.random((1000, 2)) * (grid.upper - grid.lower)
+    cells, xi = grid.locate(x)
+    np.testing.assert_allclose(grid.cell_origin(cells) + grid.h * xi, x, rtol=0, atol=1e-14)
+    assert np.all((xi >= 0) & (xi <= 1))
+
+
+def test_points_on_walls_belong_to_the_grid(comm):
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 1.0), 0.1)
+    cells, xi = grid.locate(np.array([[1.0, 1.0], [0.0, 0.0], [1.0, 0.35]]))
+    assert cells.tolist() == [99, 0, 39]
+    np.testing.assert_allclose(xi[0], [1.0, 1.0])
+
+
+def test_every_cell_has_exactly_one_owner(comm):
+    grid = fempm.Grid(comm, (0.0, 0.0), (2.0, 1.0), 0.125)
+    counts = np.zeros(grid.num_cells, dtype=np.int64)
+    counts[grid.owned_cells] = 1
+    total = comm.allreduce(counts)
+    assert np.all(total == 1)
+    assert np.all(grid.owner[grid.owned_cells] == comm.rank)
+    # the structured numbering agrees with the DOLFINx cells' midpoints
+    import dolfinx.mesh
+
+    mid = dolfinx.mesh.compute_midpoints(grid.mesh, 2, grid.local_cell[grid.owned_cells])
+    np.testing.assert_allclose(grid.cell_origin(grid.owned_cells) + grid.h / 2, mid[:, :2], atol=1e-14)
+
+
+def test_outside_point_names_the_particle(comm):
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 1.0), 0.1)
+    with pytest.raises(ParticleOutsideGridError, match=r"particle 7 at \(1\.5, 0\.5\) is outside"):
+        grid.locate(np.array([[1.5, 0.5]]), ids=np.array([7]))
+    with pytest.raises(ParticleOutsideGridError, match="particle 3"):
+        grid.locate(np.array([[np.nan, 0.5]]), ids=np.array([3]))
+
+
+@pytest.mark.parametrize(
+    "lower, upper, cells, message",
+    [
+        ((0, 0), (1.0, 1.0), (10, 5), "cells must be square"),
+        ((0, 0), (1.0, 1.0), (0, 5), "number of cells must be positive"),
+    ],
+)
+def test_non_square_cells_are_refused(comm, lower, upper, cells, message):
+    with pytest.raises(InputError, match=message):
+        fempm.Grid.from_cells(comm, lower, upper, cells)
+
+
+@pytest.mark.parametrize(
+    "upper, h, message",
+    [((1.0, 1.0), 0.3, "not a whole number of cells"), ((1.0, 1.0), -0.1, "must be positive"),
+     ((0.0, 1.0), 0.1, "must exceed lower")],
+)
+def test_bad_grid_sizes_are_refused(comm, upper, h, message):
+    with pytest.raises(InputError, match=message):
+        fempm.Grid(comm, (0.0, 0.0), upper, h)
