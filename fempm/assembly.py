@@ -10,7 +10,8 @@ element matrix is
 
 with ``phi_p[a, l]`` jet ``a`` of local basis function ``l``, ``C`` a component and
 ``w_p = V_p / h^2`` (the kernel integrates over the h x h jet cell with weight 1).
-When the cell changes, ``A_e`` goes to PETSc with ``MatSetValuesLocal``.
+When the cell changes, ``A_e`` is added into the CSR storage of the matrix
+(:mod:`fempm.matrix`).
 """
 
 from __future__ import annotations
@@ -18,14 +19,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from petsc4py import PETSc
-
-from dolfinx.fem.petsc import numba_utils
-
 __all__ = ["assemble_matrix", "assemble_vector", "assemble_scalar", "jets_at_particles"]
 
-_MatSetValuesLocal = numba_utils.MatSetValuesLocal
-_ADD_VALUES = int(PETSc.InsertMode.ADD_VALUES)
 
 
 @numba.njit(cache=True)
@@ -38,29 +33,76 @@ def _jet_cell(x, h, coords):
 
 
 @numba.njit(cache=True, fastmath=True)
-def assemble_matrix(kernel, mat, x, cell, weight, phi, lfun, coeffs, consts, perm, h):
-    """Add the particle-quadrature matrix of a bilinear form into PETSc matrix ``mat``."""
+def _add_particle(K, perm, w, phi_p, T, pair, Ae):
+    """``Ae += w * phi_p^T K phi_p``, visiting only the non-zero entries of ``K``.
+
+    ``T[C, a, D, :] = sum_b K[(C, a), (D, b)] phi_p[b, :]`` is formed first for the
+    non-zero entries, then ``Ae[C, :, D, :] += phi_p[a, :] (x) T[C, a, D, :]`` for the
+    (C, a, D) that had any.
+    """
+    bs, nq = perm.shape
+    nl = phi_p.shape[1]
+    nk = bs * nq
+    pair[:] = False
+    for C in range(bs):
+        for a in range(nq):
+            row = perm[C, a] * nk
+            for D in range(bs):
+                for b in range(nq):
+                    k = K[row + perm[D, b]]
+                    if k != 0.0:
+                        if not pair[C, a, D]:
+                            pair[C, a, D] = True
+                            T[C, a, D, :] = 0.0
+                        k *= w
+                        for m in range(nl):
+                            T[C, a, D, m] += k * phi_p[b, m]
+    for C in range(bs):
+        for a in range(nq):
+            for D in range(bs):
+                if pair[C, a, D]:
+                    for l in range(nl):
+                        f = phi_p[a, l]
+                        for m in range(nl):
+                            Ae[C, l, D, m] += f * T[C, a, D, m]
+
+
+@numba.njit(cache=True)
+def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil):
+    """Add the element matrix of one cell into the CSR values (see fempm.matrix)."""
+    bs, nl = Ae.shape[0], Ae.shape[1]
+    k = k1 - 1
+    width = 2 * k + 1
+    for l in range(nl):
+        f = lfun_p[l]
+        la, lb = l % k1, l // k1
+        for m in range(nl):
+            s = stencil[f, (m % k1 - la + k) + width * (m // k1 - lb + k)]
+            for C in range(bs):
+                base = indptr[bs * f + C] + bs * s
+                for D in range(bs):
+                    values[base + D] += Ae[C, l, D, m]
+
+
+@numba.njit(cache=True)
+def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun, coeffs, consts, perm, h):
+    """Add the particle-quadrature matrix of a bilinear form into CSR ``values``."""
     n = cell.shape[0]
     bs, nq = perm.shape
     nl = phi.shape[2]
     nk = bs * nq
-    ne = bs * nl
+    k1 = int(np.sqrt(nl) + 0.5)
     K = np.zeros(nk * nk)
-    T = np.zeros((nk, ne))
-    Ae = np.zeros((ne, ne))
-    dofs = np.zeros(ne, dtype=np.int32)
+    T = np.zeros((bs, nq, bs, nl))
+    pair = np.zeros((bs, nq, bs), dtype=np.bool_)
+    Ae = np.zeros((bs, nl, bs, nl))
     coords = np.zeros(12)
-    block_nonzero = np.zeros((bs, bs), dtype=np.bool_)
     cur = -1
     for p in range(n + 1):
         c = cell[p] if p < n else -1
         if c != cur:
             if cur >= 0:
-                q = p - 1
-                for C in range(bs):
-                    for l in range(nl):
-                        dofs[C * nl + l] = bs * lfun[q, l] + C
-                _MatSetValuesLocal(mat, ne, dofs.ctypes, ne, dofs.ctypes, Ae.ctypes, _ADD_VALUES)
+                _add_to_csr(Ae, lfun[p - 1], k1, values, indptr, stencil)
             if p == n:
                 break
             Ae[:] = 0.0
@@ -68,35 +110,7 @@ def assemble_matrix(kernel, mat, x, cell, weight, phi, lfun, coeffs, consts, per
         K[:] = 0.0
         _jet_cell(x[p], h, coords)
         kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        w = weight[p]
-        # T[(C, a), (C', m)] = sum_b K[(C, a), (C', b)] phi[b, m], skipping zero blocks
-        for C in range(bs):
-            for D in range(bs):
-                nz = False
-                for a in range(nq):
-                    for b in range(nq):
-                        if K[perm[C, a] * nk + perm[D, b]] != 0.0:
-                            nz = True
-                block_nonzero[C, D] = nz
-                if not nz:
-                    continue
-                for a in range(nq):
-                    row = perm[C, a] * nk
-                    for m in range(nl):
-                        s = 0.0
-                        for b in range(nq):
-                            s += K[row + perm[D, b]] * phi[p, b, m]
-                        T[C * nq + a, D * nl + m] = w * s
-        for C in range(bs):
-            for D in range(bs):
-                if not block_nonzero[C, D]:
-                    continue
-                for l in range(nl):
-                    for m in range(nl):
-                        s = 0.0
-                        for a in range(nq):
-                            s += phi[p, a, l] * T[C * nq + a, D * nl + m]
-                        Ae[C * nl + l, D * nl + m] += s
+        _add_particle(K, perm, weight[p], phi[p], T, pair, Ae)
     return 0
 
 

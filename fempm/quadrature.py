@@ -48,7 +48,8 @@ import dolfinx.mesh
 from fempm import assembly
 from fempm.bases import jet_indices
 from fempm.errors import InputError
-from fempm.lagrange import extraction_matrix, lagrange_element, lagrange_space
+from fempm.lagrange import extraction_matrix, lagrange_space
+from fempm.matrix import grid_matrix, layout
 from fempm.space import GridFunction, Space
 
 __all__ = ["GaussForm", "ParticleForm", "Symbols"]
@@ -368,14 +369,16 @@ class ParticleForm:
         self._require_rank(2)
         if A is None:
             A = self.space.create_matrix()
-        A.zeroEntries()
+        target = grid_matrix(A)
+        if target.space is not self.space and target.layout is not layout(self.space):
+            raise InputError("the matrix was created by another space than the form's")
+        target.zero()
         phi, lfun, weight, coeffs, consts = self._particle_data(particles)
         assembly.assemble_matrix(
-            self._kernel, A.handle, particles.x, particles.cell, weight, phi, lfun,
-            coeffs, consts, self._perm, self.space.grid.h,
+            self._kernel, target.values, target.layout.indptr, target.layout.stencil, particles.x,
+            particles.cell, weight, phi, lfun, coeffs, consts, self._perm, self.space.grid.h,
         )
-        A.assemble()
-        return A
+        return target.finalize()
 
     def assemble_vector(self, particles, b: dolfinx.la.Vector | None = None) -> dolfinx.la.Vector:
         """The vector ``b_i = sum_p V_p L(phi_i)(x_p)``; owned entries complete, ghosts zero."""

@@ -199,48 +199,15 @@ class Space:
         return phi, lfun
 
     # -- PETSc objects --------------------------------------------------------------
-    def sparsity(self) -> tuple[np.ndarray, np.ndarray]:
-        """CSR pattern (row pointer, global columns) of this rank's owned rows.
-
-        Two functions couple when their supports share a cell: indices within
-        ``degree`` of each other in both directions. The pattern covers every
-        cell, so it never changes as particles move.
-        """
-        b, num = self.basis, self.numbering
-        k = b.degree
-        owned = num.local_functions[: num.num_owned]
-        i, j = owned % b.nfx, owned // b.nfx
-        d = np.arange(-k, k + 1)
-        di, dj = np.repeat(d, len(d)), np.tile(d, len(d))
-        ni, nj = i[:, None] + di, j[:, None] + dj
-        valid = (ni >= 0) & (ni < b.nfx) & (nj >= 0) & (nj < b.nfy)
-        neighbour = np.where(valid, num.global_index[np.where(valid, ni + b.nfx * nj, 0)], -1)
-        neighbour = np.sort(np.where(valid, neighbour, np.iinfo(np.int64).max), axis=1)
-        count = valid.sum(axis=1)
-        # expand functions to dofs: row (f, c) has columns bs*g + c' for every neighbour g
-        bs = self.bs
-        flat = neighbour[np.arange(neighbour.shape[1])[None, :] < count[:, None]]
-        per_function = (bs * flat[:, None] + np.arange(bs)).ravel()  # one column list per f
-        block_start = np.concatenate([[0], np.cumsum(count * bs)])[:-1]
-        row_len = np.repeat(count * bs, bs)
-        indptr = np.concatenate([[0], np.cumsum(row_len)])
-        shift = np.repeat(np.repeat(block_start, bs) - indptr[:-1], row_len)
-        indices = per_function[np.arange(indptr[-1]) + shift]
-        return indptr, indices
-
     def create_matrix(self) -> PETSc.Mat:
-        """A PETSc AIJ matrix with the full-grid sparsity and the local-to-global map set."""
-        indptr, indices = self.sparsity()
-        n, big_n = self.num_owned_dofs, self.num_global_dofs
-        A = PETSc.Mat().create(comm=self.comm)
-        A.setSizes(((n, big_n), (n, big_n)), bsize=self.bs)
-        A.setType(PETSc.Mat.Type.AIJ)
-        A.setPreallocationCSR((indptr.astype(PETSc.IntType), indices.astype(PETSc.IntType)))
-        A.setLGMap(self.lgmap, self.lgmap)
-        A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
-        A.zeroEntries()
-        A.assemble()
-        return A
+        """A PETSc AIJ matrix (block size ``bs``) with the full-grid sparsity, all zero.
+
+        Particle forms assemble into its CSR storage directly (see :mod:`fempm.matrix`).
+        """
+        from fempm.matrix import GridMatrix
+
+        gm = GridMatrix(self)
+        return gm.finalize()
 
     def create_vector(self) -> dolfinx.la.Vector:
         """A DOLFINx vector with ghosts (``.array`` is owned then ghost dofs)."""

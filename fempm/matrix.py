@@ -1,0 +1,171 @@
+"""Matrices with the fixed full-grid sparsity, filled directly in CSR storage.
+
+Two basis functions couple when their supports share a cell, i.e. when their
+structured indices differ by at most the degree ``k`` in both directions: each
+row has the same stencil of at most ``(2k+1)^2`` functions times ``bs``
+components, whatever the particles do, so the sparsity never changes.
+
+Assembly adds element matrices straight into the CSR value array of this
+rank's *local* rows (owned, then ghost): the position of an entry follows from
+the structured offset of its column function, looked up in ``stencil``. The
+ghost rows are then added into their owners' rows (the same stencil in the same
+column order on both ranks) and the owned rows are handed to PETSc, sharing
+memory in serial and by ``MatUpdateMPIAIJWithArray`` in parallel. This avoids
+a search per entry in ``MatSetValues``.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import weakref
+
+import numpy as np
+from petsc4py import PETSc
+
+import dolfinx.fem.petsc
+
+from fempm.space import Space
+
+__all__ = ["GridMatrix", "MatrixLayout", "grid_matrix", "layout"]
+
+_petsc = ctypes.CDLL(str(dolfinx.fem.petsc.get_petsc_lib()))
+_petsc.MatUpdateMPIAIJWithArray.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+_petsc.MatUpdateMPIAIJWithArray.restype = ctypes.c_int
+
+
+class MatrixLayout:
+    """CSR pattern of a space's local rows and the communication of its ghost rows.
+
+    Attributes:
+        indptr: row pointer of the local dof rows (owned then ghost), scalar rows.
+        columns: global column indices, sorted within each row.
+        stencil: ``stencil[f, (di + k) + (2k + 1) * (dj + k)]`` is the position of
+            neighbour ``(di, dj)`` of local function ``f`` in its sorted neighbour
+            list (-1 outside the grid); entry ``(f, C) x (g, D)`` sits at
+            ``indptr[bs * f + C] + bs * stencil[f, .] + D``.
+    """
+
+    def __init__(self, space: Space):
+        self.space = space
+        b, num, bs = space.basis, space.numbering, space.bs
+        k = b.degree
+        width = 2 * k + 1
+        f = num.local_functions
+        i, j = f % b.nfx, f // b.nfx
+        d = np.arange(-k, k + 1)
+        di, dj = np.tile(d, width), np.repeat(d, width)  # stencil index (di+k) + width*(dj+k)
+        ni, nj = i[:, None] + di, j[:, None] + dj
+        valid = (ni >= 0) & (ni < b.nfx) & (nj >= 0) & (nj < b.nfy)
+        big = np.iinfo(np.int64).max
+        neighbour = np.where(valid, num.global_index[np.where(valid, ni + b.nfx * nj, 0)], big)
+        order = np.argsort(neighbour, axis=1, kind="stable")
+        rank_in_row = np.empty_like(order)
+        np.put_along_axis(rank_in_row, order, np.arange(width * width)[None, :], axis=1)
+        self.stencil = np.where(valid, rank_in_row, -1).astype(np.int32)
+        count = valid.sum(axis=1)
+        sorted_neighbours = np.take_along_axis(neighbour, order, axis=1)
+        flat = sorted_neighbours[np.arange(width * width)[None, :] < count[:, None]]
+        per_function = (bs * flat[:, None] + np.arange(bs)).ravel()  # column list of each f
+        block_start = np.concatenate([[0], np.cumsum(count * bs)])[:-1]
+        row_len = np.repeat(count * bs, bs)
+        self.indptr = np.concatenate([[0], np.cumsum(row_len)]).astype(PETSc.IntType)
+        shift = np.repeat(np.repeat(block_start, bs) - self.indptr[:-1], row_len)
+        self.columns = per_function[np.arange(self.indptr[-1]) + shift].astype(PETSc.IntType)
+        self.num_owned_rows = num.num_owned * bs
+        self.num_owned_entries = int(self.indptr[self.num_owned_rows])
+        self._plan_ghost_rows()
+
+    def _plan_ghost_rows(self):
+        """Where each ghost row goes (rank, and position in the owner's value array)."""
+        space, num = self.space, self.space.numbering
+        comm = space.comm
+        ghosts = num.local_functions[num.num_owned :]
+        owner = num.owner[ghosts]
+        order = np.argsort(owner, kind="stable")
+        bs = space.bs
+        rows = (bs * (num.num_owned + order)[:, None] + np.arange(bs)).ravel()
+        lengths = self.indptr[rows + 1] - self.indptr[rows]
+        self.send_entries = self._entries_of_rows(rows)
+        self.send_counts = np.bincount(
+            np.repeat(owner[order], bs), weights=lengths, minlength=comm.size
+        ).astype(np.int64)
+        # tell the owners which of their functions they receive, to find the positions
+        send_functions = num.global_index[ghosts[order]]
+        function_counts = np.bincount(owner, minlength=comm.size).astype(np.int64)
+        recv_function_counts = np.empty_like(function_counts)
+        comm.Alltoall(function_counts, recv_function_counts)
+        received = np.empty(recv_function_counts.sum(), dtype=np.int64)
+        comm.Alltoallv([send_functions, function_counts], [received, recv_function_counts])
+        first_global = num.global_index[num.local_functions[0]] if num.num_owned else 0
+        local_rows = (bs * (received - first_global)[:, None] + np.arange(bs)).ravel()
+        self.recv_entries = self._entries_of_rows(local_rows)
+        self.recv_counts = np.empty_like(self.send_counts)
+        comm.Alltoall(self.send_counts, self.recv_counts)
+
+
+    def _entries_of_rows(self, rows: np.ndarray) -> np.ndarray:
+        """Positions in the value array of all entries of the given rows, row after row."""
+        start, stop = self.indptr[rows].astype(np.int64), self.indptr[rows + 1].astype(np.int64)
+        length = stop - start
+        offsets = np.concatenate([[0], np.cumsum(length)])[:-1]
+        return np.repeat(start - offsets, length) + np.arange(length.sum())
+
+
+class GridMatrix:
+    """A PETSc matrix of a space with the full-grid sparsity and direct CSR access.
+
+    ``values`` holds the local rows (owned then ghost); after filling it call
+    :meth:`finalize` to add the ghost rows into their owners and update PETSc.
+    ``mat`` is the PETSc matrix (AIJ, block size ``bs``, global numbering).
+    """
+
+    def __init__(self, space: Space):
+        self.space = space
+        self.layout = layout(space)
+        lay = self.layout
+        self.values = np.zeros(len(lay.columns))
+        n, big_n = space.num_owned_dofs, space.num_global_dofs
+        owned = slice(0, lay.num_owned_entries)
+        csr = (lay.indptr[: lay.num_owned_rows + 1], lay.columns[owned], self.values[owned])
+        self.mat = PETSc.Mat().createAIJWithArrays(((n, big_n), (n, big_n)), csr, bsize=space.bs, comm=space.comm)
+        self.mat.setAttr("fempm_grid_matrix", self)
+        self._shared = space.comm.size == 1  # a SeqAIJ made from arrays shares self.values
+
+    def zero(self):
+        """Set every stored value to zero (the sparsity stays)."""
+        self.values[:] = 0.0
+
+    def finalize(self) -> PETSc.Mat:
+        """Add ghost rows into their owners and pass the owned rows to PETSc."""
+        lay, comm = self.layout, self.space.comm
+        if comm.size > 1:
+            send = self.values[lay.send_entries]
+            recv = np.empty(lay.recv_counts.sum())
+            comm.Alltoallv([send, lay.send_counts], [recv, lay.recv_counts])
+            np.add.at(self.values, lay.recv_entries, recv)
+        if self._shared:
+            self.mat.stateIncrease()
+        else:
+            owned = np.ascontiguousarray(self.values[: lay.num_owned_entries])
+            err = _petsc.MatUpdateMPIAIJWithArray(self.mat.handle, owned.ctypes.data)
+            if err:
+                raise RuntimeError(f"MatUpdateMPIAIJWithArray failed with PETSc error {err}")
+        return self.mat
+
+
+_layouts: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+
+def layout(space: Space) -> MatrixLayout:
+    """The matrix layout of a space (built once per space)."""
+    if space not in _layouts:
+        _layouts[space] = MatrixLayout(space)
+    return _layouts[space]
+
+
+def grid_matrix(mat: PETSc.Mat) -> GridMatrix:
+    """The :class:`GridMatrix` behind a PETSc matrix made by :meth:`Space.create_matrix`."""
+    gm = mat.getAttr("fempm_grid_matrix")
+    if gm is None:
+        raise TypeError("this PETSc matrix was not created by fempm.Space.create_matrix()")
+    return gm
