@@ -12,6 +12,11 @@ with ``phi_p[a, l]`` jet ``a`` of local basis function ``l``, ``C`` a component 
 ``w_p = V_p / h^2`` (the kernel integrates over the h x h jet cell with weight 1).
 When the cell changes, ``A_e`` is added into the CSR storage of the matrix
 (:mod:`fempm.matrix`).
+
+Integrals over ``dx_lumped`` use nodal quadrature instead (row-sum lumping):
+``sum_p V_p sum_f N_f(x_p) g(x_p; grid functions at f)``, the integrand evaluated
+once per particle and basis function with the grid functions replaced by that
+function's coefficient; a lumped mass matrix is diagonal per function.
 """
 
 from __future__ import annotations
@@ -19,7 +24,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["assemble_matrix", "assemble_vector", "assemble_scalar", "jets_at_particles"]
+__all__ = [
+    "assemble_matrix",
+    "assemble_matrix_lumped",
+    "assemble_scalar",
+    "assemble_vector",
+    "assemble_vector_lumped",
+    "jets_at_particles",
+]
 
 
 
@@ -133,6 +145,70 @@ def assemble_vector(kernel, out, x, cell, weight, phi, lfun, coeffs, consts, per
                 for a in range(nq):
                     s += phi[p, a, l] * K[perm[C, a]]
                 out[bs * lfun[p, l] + C] += w * s
+    return 0
+
+
+@numba.njit(cache=True)
+def _nodal_coefficients(base, w, lf, G, slot_pos, slot_col, zero_pos):
+    """Coefficients with the grid functions taken at function ``lf``: values, no derivatives."""
+    w[:] = base
+    for s in range(slot_pos.shape[0]):
+        w[slot_pos[s]] = G[lf, slot_col[s]]
+    for s in range(zero_pos.shape[0]):
+        w[zero_pos[s]] = 0.0
+
+
+@numba.njit(cache=True)
+def assemble_matrix_lumped(kernel, values, indptr, stencil, x, weight, phi0, lfun, coeffs, consts,
+                           perm, h, G, slot_pos, slot_col, zero_pos):
+    """Nodal (row-sum lumped) quadrature of a bilinear form into CSR ``values``.
+
+    ``A[(f, C), (f, D)] += w_p N_f(x_p) K[(C, 0), (D, 0)]`` with the kernel evaluated
+    with every grid function taken at function ``f`` (its coefficient).
+    """
+    n, nl = phi0.shape
+    bs, nq = perm.shape
+    nk = bs * nq
+    k1 = int(np.sqrt(nl) + 0.5)
+    centre = (k1 - 1) + (2 * k1 - 1) * (k1 - 1)
+    K = np.zeros(nk * nk)
+    w = np.empty(coeffs.shape[1])
+    coords = np.zeros(12)
+    for p in range(n):
+        _jet_cell(x[p], h, coords)
+        for l in range(nl):
+            f = lfun[p, l]
+            _nodal_coefficients(coeffs[p], w, f, G, slot_pos, slot_col, zero_pos)
+            K[:] = 0.0
+            kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+            scale = weight[p] * phi0[p, l]
+            s = stencil[f, centre]
+            for C in range(bs):
+                base = indptr[bs * f + C] + bs * s
+                for D in range(bs):
+                    values[base + D] += scale * K[perm[C, 0] * nk + perm[D, 0]]
+    return 0
+
+
+@numba.njit(cache=True)
+def assemble_vector_lumped(kernel, out, x, weight, phi0, lfun, coeffs, consts, perm, h,
+                           G, slot_pos, slot_col, zero_pos):
+    """Nodal (row-sum lumped) quadrature of a linear form: ``b[(f, C)] += w_p N_f(x_p) k[(C, 0)]``."""
+    n, nl = phi0.shape
+    bs, nq = perm.shape
+    K = np.zeros(bs * nq)
+    w = np.empty(coeffs.shape[1])
+    coords = np.zeros(12)
+    for p in range(n):
+        _jet_cell(x[p], h, coords)
+        for l in range(nl):
+            f = lfun[p, l]
+            _nodal_coefficients(coeffs[p], w, f, G, slot_pos, slot_col, zero_pos)
+            K[:] = 0.0
+            kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+            scale = weight[p] * phi0[p, l]
+            for C in range(bs):
+                out[bs * f + C] += scale * K[perm[C, 0]]
     return 0
 
 

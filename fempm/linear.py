@@ -56,6 +56,7 @@ class LinearSolver:
         A_free = A.createSubMatrix(index_set, index_set)
         b_free = b.getSubVector(index_set)
         x_free = A_free.createVecRight()
+        self.ksp.reset()  # the free set, so the operator's size, changes between solves
         self.ksp.setOperators(A_free)
         self.ksp.solve(b_free, x_free)
         b.restoreSubVector(index_set, b_free)

@@ -57,6 +57,7 @@ __all__ = ["GaussForm", "ParticleForm", "Symbols"]
 FormBuilder = Callable[["Symbols"], ufl.Form]
 
 _JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2"]}
+_REGULAR, _LUMPED = 0, 1  # subdomain ids of s.dx and s.dx_lumped on the jet cell
 _KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
 _ffi = FFI()
 
@@ -121,14 +122,16 @@ class _JetCell:
         return np.array(out, dtype=np.int64)
 
 
-def _derivative_order(form: ufl.Form) -> int:
-    """Highest number of nested gradients acting on a function in the form."""
+def _derivative_order(form: ufl.Form, subdomain: int) -> int:
+    """Highest number of nested gradients acting on a function in the integrals over ``subdomain``."""
     from ufl.algorithms import expand_derivatives
     from ufl.classes import Grad, ReferenceGrad
     from ufl.corealg.traversal import unique_pre_traversal
 
     order = 0
     for integral in expand_derivatives(form).integrals():
+        if integral.subdomain_id() not in (subdomain, (subdomain,)):
+            continue
         for node in unique_pre_traversal(integral.integrand()):
             depth = 0
             while isinstance(node, (Grad, ReferenceGrad)):
@@ -147,6 +150,11 @@ class Symbols:
         trial, test: trial and test functions; a tuple with one entry per field for a
             space with several fields (``(u, p), (v, q) = s.trial, s.test``).
         dx: the integration measure (particles, or Gauss points).
+        dx_lumped: nodal (row-sum lumped) quadrature on the particles: the integrand is
+            evaluated per particle and basis function ``f`` with every grid function
+            replaced by its coefficient at ``f``, and weighted by ``V_p N_f(x_p)``; a mass
+            term over it gives the lumped (diagonal) mass matrix. Its integrand may not
+            take derivatives. On the Gauss target it is the ordinary ``dx``.
         x: the spatial coordinate.
         h: the grid cell size (a number).
     """
@@ -164,6 +172,7 @@ class Symbols:
         self.trial = self._split(ufl.TrialFunction(V), space.fields)
         self.test = self._split(ufl.TestFunction(V), space.fields)
         self.dx = target.dx
+        self.dx_lumped = target.dx_lumped
         self.x = ufl.SpatialCoordinate(target.mesh)
         self.h = space.grid.h
 
@@ -220,7 +229,8 @@ class _ParticleTarget:
             "quadrature_points": np.zeros((1, 2)),
             "quadrature_weights": np.ones(1),
         }
-        self.dx = ufl.Measure("dx", domain=self.mesh, metadata=rule)
+        measure = ufl.Measure("dx", domain=self.mesh, metadata=rule)
+        self.dx, self.dx_lumped = measure(_REGULAR), measure(_LUMPED)
         self._spaces: dict[tuple, dolfinx.fem.FunctionSpace] = {}
 
     def space(self, fields):
@@ -245,6 +255,7 @@ class _GaussTarget:
         self.mesh = space.grid.mesh
         self.degree = degree
         self.dx = ufl.Measure("dx", domain=self.mesh, metadata={"quadrature_degree": degree})
+        self.dx_lumped = self.dx  # Gauss quadrature has no nodal rule for B-splines: consistent
         self._spaces: dict[tuple, dolfinx.fem.FunctionSpace] = {}
 
     def space(self, fields):
@@ -314,7 +325,9 @@ class ParticleForm:
             symbols = Symbols(target, space, shapes, self.grid_functions, self.constants)
             form = builder(symbols)
             _check_cell_integrals(form)
-            needed = max(_derivative_order(form), 1)
+            if _derivative_order(form, _LUMPED) > 0:
+                raise InputError("an integral over dx_lumped may not take derivatives (it uses nodal values)")
+            needed = max(_derivative_order(form, _REGULAR), 1)
             if needed <= order:
                 break
             if needed > 2:
@@ -326,10 +339,10 @@ class ParticleForm:
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
-        if ufcx.form_integral_offsets[1] - ufcx.form_integral_offsets[0] != 1:
-            raise InputError("a particle form must have a single cell integral over all of dx")
-        address = int(_ffi.cast("intptr_t", ufcx.form_integrals[0].tabulate_tensor_float64))
-        self._kernel = _KERNEL_TYPE(address)
+        self._kernels = {}  # subdomain id -> kernel of the regular and the lumped integral
+        for i in range(ufcx.form_integral_offsets[0], ufcx.form_integral_offsets[1]):
+            address = int(_ffi.cast("intptr_t", ufcx.form_integrals[i].tabulate_tensor_float64))
+            self._kernels[ufcx.form_integral_ids[i]] = _KERNEL_TYPE(address)
         original = form.coefficients()
         self._coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
         self._perm = target.jet_cell.dof_index(space.fields)
@@ -337,6 +350,7 @@ class ParticleForm:
 
     # -- coefficient packing ---------------------------------------------------------
     def _pack(self, particles, phi, lfun) -> np.ndarray:
+        """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
         n = len(particles)
         blocks = []
         for coefficient in self._coefficients:
@@ -354,6 +368,32 @@ class ParticleForm:
         if not blocks:
             return np.zeros((n, 1))
         return np.ascontiguousarray(np.concatenate(blocks, axis=1))
+
+    def _nodal_slots(self):
+        """For lumped integrals: the grid functions' coefficients side by side, and where
+        their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
+        columns, slot_pos, slot_col, zero_pos = [], [], [], []
+        offset = column = 0
+        for coefficient in self._coefficients:
+            kind, name = self.symbols.used[coefficient]
+            if kind == "particle":
+                offset += int(np.prod(self.particle_shape(name), dtype=int))
+                continue
+            gf = self.grid_functions[name]
+            index = self._jet_cell.dof_index(gf.space.fields)  # [C, a]
+            slot_pos.extend(offset + index[:, 0])
+            slot_col.extend(column + np.arange(gf.space.bs))
+            zero_pos.extend(offset + index[:, 1:].ravel())
+            columns.append(gf.values)
+            offset += index.size
+            column += gf.space.bs
+        G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
+        as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
+        return G, as_int(slot_pos), as_int(slot_col), as_int(zero_pos)
+
+    def particle_shape(self, name: str) -> tuple[int, ...]:
+        """Value shape of a particle field the form uses."""
+        return tuple(self.symbols._particle_shapes[name])
 
     def _particle_data(self, particles):
         phi, lfun = self.space.tabulate_particles(particles, self.order)
@@ -374,10 +414,17 @@ class ParticleForm:
             raise InputError("the matrix was created by another space than the form's")
         target.zero()
         phi, lfun, weight, coeffs, consts = self._particle_data(particles)
-        assembly.assemble_matrix(
-            self._kernel, target.values, target.layout.indptr, target.layout.stencil, particles.x,
-            particles.cell, weight, phi, lfun, coeffs, consts, self._perm, self.space.grid.h,
-        )
+        lay, h = target.layout, self.space.grid.h
+        if _REGULAR in self._kernels:
+            assembly.assemble_matrix(
+                self._kernels[_REGULAR], target.values, lay.indptr, lay.stencil, particles.x,
+                particles.cell, weight, phi, lfun, coeffs, consts, self._perm, h,
+            )
+        if _LUMPED in self._kernels:
+            assembly.assemble_matrix_lumped(
+                self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
+                np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, *self._nodal_slots(),
+            )
         return target.finalize()
 
     def assemble_vector(self, particles, b: dolfinx.la.Vector | None = None) -> dolfinx.la.Vector:
@@ -387,18 +434,28 @@ class ParticleForm:
             b = self.space.create_vector()
         b.array[:] = 0.0
         phi, lfun, weight, coeffs, consts = self._particle_data(particles)
-        assembly.assemble_vector(
-            self._kernel, b.array, particles.x, particles.cell, weight, phi, lfun,
-            coeffs, consts, self._perm, self.space.grid.h,
-        )
+        h = self.space.grid.h
+        if _REGULAR in self._kernels:
+            assembly.assemble_vector(
+                self._kernels[_REGULAR], b.array, particles.x, particles.cell, weight, phi, lfun,
+                coeffs, consts, self._perm, h,
+            )
+        if _LUMPED in self._kernels:
+            assembly.assemble_vector_lumped(
+                self._kernels[_LUMPED], b.array, particles.x, weight, np.ascontiguousarray(phi[:, 0, :]),
+                lfun, coeffs, consts, self._perm, h, *self._nodal_slots(),
+            )
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return b
 
     def assemble_scalar(self, particles) -> float:
         """``sum_p V_p f(x_p)`` over the particles of all ranks."""
         self._require_rank(0)
+        if _LUMPED in self._kernels:
+            raise InputError("a functional cannot integrate over dx_lumped")
         _, _, weight, coeffs, consts = self._particle_data(particles)
-        local = assembly.assemble_scalar(self._kernel, particles.x, weight, coeffs, consts, self.space.grid.h)
+        local = assembly.assemble_scalar(
+            self._kernels[_REGULAR], particles.x, weight, coeffs, consts, self.space.grid.h)
         return self.space.comm.allreduce(local)
 
     def _require_rank(self, rank: int):

@@ -22,6 +22,7 @@ from fempm.assembly import jets_at_particles
 from fempm.space import GridFunction, Space
 
 __all__ = [
+    "grid_jets_to_particles",
     "grid_to_particles",
     "grid_gradient_to_particles",
     "lumped_mass",
@@ -79,6 +80,14 @@ def _jets(gf: GridFunction, particles, order: int) -> np.ndarray:
     out = np.empty((len(particles), phi.shape[1], gf.space.bs))
     jets_at_particles(phi, lfun, np.ascontiguousarray(gf.values), out)
     return out
+
+
+def grid_jets_to_particles(gf: GridFunction, particles, order: int = 1) -> np.ndarray:
+    """Values and reference derivatives at the particles, ``(n, len(jet_indices(order)), bs)``.
+
+    Physical derivatives are these divided by ``h ** (a + b)``.
+    """
+    return _jets(gf, particles, order)
 
 
 def grid_to_particles(gf: GridFunction, particles) -> np.ndarray:

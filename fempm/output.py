@@ -1,0 +1,203 @@
+"""Files a run writes: CSV and JSON tables, particle series for ParaView, grid fields, pictures.
+
+Every file is written to a temporary name beside its final one and renamed when
+complete, so a run stopped at any moment leaves no half-written file (the grid
+series is an ADIOS2/VTX stream, which records only whole steps). Only rank 0 writes
+tables and pictures; particles are gathered to it.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from fempm.errors import InputError
+
+__all__ = [
+    "GridSeries",
+    "ParticleSeries",
+    "atomic_path",
+    "gather_particles",
+    "prepare_folder",
+    "snapshot",
+    "write_csv",
+    "write_json",
+]
+
+
+def prepare_folder(folder: str | Path, comm) -> Path:
+    """Create the output folder (all ranks agree), or fail clearly if it is a file."""
+    folder = Path(folder)
+    error = None
+    if comm.rank == 0:
+        if folder.exists() and not folder.is_dir():
+            error = f"output folder {str(folder)!r} exists and is not a folder"
+        else:
+            try:
+                folder.mkdir(parents=True, exist_ok=True)
+            except OSError as e:
+                error = f"cannot create output folder {str(folder)!r}: {e.strerror}"
+    error = comm.bcast(error, root=0)
+    if error:
+        raise InputError(error)
+    return folder
+
+
+@contextmanager
+def atomic_path(path: str | Path):
+    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def write_csv(path: str | Path, header: list[str], rows, comment: str | None = None):
+    """Write a CSV table (optionally a ``# comment`` first line) atomically."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "w", newline="") as f:
+            if comment:
+                f.write(f"# {comment}\n")
+            writer = csv.writer(f)
+            writer.writerow(header)
+            writer.writerows(rows)
+
+
+def write_json(path: str | Path, data: dict):
+    """Write a JSON document atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=_to_builtin) + "\n")
+
+
+def _to_builtin(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"cannot write {type(value).__name__} to JSON")
+
+
+def gather_particles(particles, fields=("velocity", "pressure")) -> dict[str, np.ndarray] | None:
+    """All particles' positions, ids and the given fields on rank 0 (None elsewhere), sorted by id."""
+    comm = particles.grid.comm
+    names = ["x", "id", *fields]
+    parts = comm.gather({n: particles[n] for n in names}, root=0)
+    if comm.rank != 0:
+        return None
+    out = {n: np.concatenate([p[n] for p in parts]) for n in names}
+    order = np.argsort(out["id"])
+    return {n: a[order] for n, a in out.items()}
+
+
+class ParticleSeries:
+    """Particles as VTK PolyData files (``name_000000.vtp``) and a ParaView ``name.pvd`` index."""
+
+    def __init__(self, folder: Path, name: str = "particles", fields=("velocity", "pressure")):
+        self.folder, self.name, self.fields = Path(folder), name, tuple(fields)
+        self.entries: list[tuple[float, str]] = []
+
+    def write(self, particles, t: float):
+        """Write the particles at time ``t`` and update the index."""
+        data = gather_particles(particles, self.fields)
+        if data is None:
+            return
+        import pyvista as pv
+
+        points = np.column_stack([data["x"], np.zeros(len(data["x"]))])
+        cloud = pv.PolyData(points)
+        cloud.point_data["id"] = data["id"]
+        for field in self.fields:
+            cloud.point_data[field] = _three_d(data[field])
+        filename = f"{self.name}_{len(self.entries):06d}.vtp"
+        with atomic_path(self.folder / filename) as tmp:
+            cloud.save(tmp)
+        self.entries.append((t, filename))
+        collection = "".join(
+            f'    <DataSet timestep="{time:.9g}" file="{file}"/>\n' for time, file in self.entries
+        )
+        with atomic_path(self.folder / f"{self.name}.pvd") as tmp:
+            tmp.write_text(
+                '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
+                f"{collection}  </Collection>\n</VTKFile>\n"
+            )
+
+
+def _three_d(a: np.ndarray) -> np.ndarray:
+    """Vectors of two components padded to three, as VTK expects."""
+    if a.ndim == 2 and a.shape[1] == 2:
+        return np.column_stack([a, np.zeros(len(a))])
+    return a
+
+
+class GridSeries:
+    """Grid fields (velocity, pressure) of a solver as a VTX (ADIOS2) stream, ``grid.bp``.
+
+    The fields are written as Lagrange functions (Q1, or Q2 holding the B-spline
+    fields exactly through the extraction matrix), which ParaView reads.
+    """
+
+    def __init__(self, folder: Path, velocity_space, scalar_space):
+        import dolfinx.fem
+        import dolfinx.io
+
+        from fempm.lagrange import extraction_matrix, lagrange_space
+
+        self.velocity = dolfinx.fem.Function(lagrange_space(velocity_space), name="velocity")
+        self.pressure = dolfinx.fem.Function(lagrange_space(scalar_space), name="pressure")
+        self._P_velocity = extraction_matrix(velocity_space, self.velocity.function_space)
+        self._P_pressure = extraction_matrix(scalar_space, self.pressure.function_space)
+        mesh = velocity_space.grid.mesh
+        self.writer = dolfinx.io.VTXWriter(mesh.comm, str(Path(folder) / "grid.bp"),
+                                           [self.velocity, self.pressure], engine="BP4")
+
+    def write(self, velocity, pressure, t: float):
+        """Write grid functions ``velocity`` (2 components) and ``pressure`` at time ``t``."""
+        for P, source, target in ((self._P_velocity, velocity, self.velocity),
+                                  (self._P_pressure, pressure, self.pressure)):
+            P.mult(source.vector.petsc_vec, target.x.petsc_vec)
+            target.x.scatter_forward()
+        self.writer.write(t)
+
+    def close(self):
+        """Close the stream."""
+        self.writer.close()
+
+
+def snapshot(path: str | Path, particles, field: str = "pressure", title: str = "",
+             clim: tuple[float, float] | None = None, point_size: float = 6.0):
+    """A PNG picture of the particles coloured by ``field``, drawn off-screen by pyvista."""
+    data = gather_particles(particles, (field,))
+    if data is None:
+        return
+    os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")  # no X server needed
+    import pyvista as pv
+
+    grid = particles.grid
+    values = data[field] if data[field].ndim == 1 else np.linalg.norm(data[field], axis=1)
+    cloud = pv.PolyData(np.column_stack([data["x"], np.zeros(len(values))]))
+    cloud.point_data[field] = values
+    box = pv.Box(bounds=(grid.lower[0], grid.upper[0], grid.lower[1], grid.upper[1], 0, 0))
+    plotter = pv.Plotter(off_screen=True, window_size=(900, 800))
+    plotter.set_background("white")
+    plotter.add_mesh(box.outline(), color="black", line_width=2)
+    plotter.add_mesh(cloud, scalars=field, point_size=point_size, render_points_as_spheres=True,
+                     cmap="viridis", clim=clim,
+                     scalar_bar_args={"title": f"{field} (Pa)" if field == "pressure" else field,
+                                      "color": "black", "vertical": False, "position_y": 0.02,
+                                      "position_x": 0.2, "width": 0.6})
+    if title:
+        plotter.add_text(title, position="upper_edge", font_size=12, color="black")
+    plotter.view_xy()
+    plotter.camera.zoom(1.05)
+    with atomic_path(path) as tmp:
+        plotter.screenshot(str(tmp))
+    plotter.close()

@@ -1,0 +1,136 @@
+"""Weak forms of the stabilised implicit MPM for incompressible viscous flow (method.md).
+
+Edit these to change the physics: fempm compiles whatever this module returns, once
+per run, and integrates it with the particles as quadrature points. A demo picks
+another copy with ``--forms path/to/copy.py``.
+
+Unknowns of a step: the grid displacement increment ``du`` and the pressure ``p``,
+gathered in the grid function ``U = (du, p)``. The step solves ``R(U; w, q) = 0``
+for all test functions ``(w, q)``, by Newton's method with the Jacobian
+``dR/dU`` that UFL derives (one iteration when ``R`` is affine in ``U``, as here;
+the matrix is the block system of method.md eq. (1)).
+
+What a form may use (see ``fempm.quadrature.Symbols``):
+
+* particle fields: ``density`` rho_p, ``velocity`` and ``acceleration`` (the
+  particle's own values at the start of the step);
+* grid functions: ``U`` (the unknowns), ``grid_velocity`` v_n and
+  ``grid_acceleration`` a_n (the particle values projected to the grid,
+  ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2);
+* constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``gravity``
+  (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``pspg`` (1 or 0),
+  ``compressibility`` (1 / bulk modulus; 0 for a strictly incompressible fluid).
+
+Two measures: ``s.dx`` integrates at the particles; ``s.dx_lumped`` too, but with
+the grid functions taken at the basis function being tested (nodal quadrature,
+row-sum lumping): the inertia over it has the lumped mass matrix of MPM.
+"""
+
+import ufl
+
+
+def eps(w):
+    """Symmetric gradient ``eps(w) = (grad w + grad w^T) / 2``."""
+    return ufl.sym(ufl.grad(w))
+
+
+# --- Newmark-beta with the grid reset every step (u_n = 0 on the grid) --------------
+def newmark_acceleration(du, v_n, a_n, dt, beta):
+    """``a_{n+1} = (du - dt v_n - dt^2 (1/2 - beta) a_n) / (beta dt^2)`` (Newmark 1959)."""
+    return (du - dt * v_n - dt**2 * (0.5 - beta) * a_n) / (beta * dt**2)
+
+
+def newmark_velocity(du, v_n, a_n, dt, beta, gamma):
+    """``v_{n+1} = v_n + dt ((1 - gamma) a_n + gamma a_{n+1})`` (Newmark 1959)."""
+    return v_n + dt * ((1 - gamma) * a_n + gamma * newmark_acceleration(du, v_n, a_n, dt, beta))
+
+
+def pspg_tau(speed, dt, h, nu):
+    """PSPG parameter (Tezduyar, Mittal, Ray & Shih 1992; Tezduyar 1992, AAM 28)::
+
+        tau = ((2 / dt)^2 + (2 |v| / h)^2 + (4 nu / h^2)^2)^(-1/2)
+
+    the transient, advective and viscous limits, whichever is smallest dominating.
+    """
+    return ((2 / dt) ** 2 + (2 * speed / h) ** 2 + (4 * nu / h**2) ** 2) ** -0.5
+
+
+# --- the residual -------------------------------------------------------------------
+def momentum(s):
+    """Momentum balance, Lagrangian, weak (method.md, "Momentum"; eq. 1, first row)::
+
+        int rho (a_{n+1} - g) . w  dx_lumped  +  int 2 mu eps(v_{n+1}) : eps(w) - p div w  dx
+
+    The inertia is lumped (the M of eq. 1 is the lumped mass matrix ``m_i``) and uses
+    the grid fields v_n, a_n, so ``m_i v_i`` is exactly the particles' momentum. A
+    consistent mass with particle quadrature is singular where few particles share
+    many basis functions (it then gave meaningless nodal values at the free surface
+    and particles crossing the walls); a consistent mass paired with particle-valued
+    v_n amplified short waves every step. The free surface is traction-free as the
+    natural condition.
+    """
+    du, p = ufl.split(s.grid("U"))
+    w, _ = s.test
+    rho = s.particle("density")
+    dt, beta, gamma, mu = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("mu")
+    g = s.constant("gravity")
+    v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
+    a_new = newmark_acceleration(du, v_n, a_n, dt, beta)
+    v_new = newmark_velocity(du, v_n, a_n, dt, beta, gamma)
+    return (rho * ufl.inner(a_new - g, w) * s.dx_lumped
+            + (2 * mu * ufl.inner(eps(v_new), eps(w)) - p * ufl.div(w)) * s.dx)
+
+
+def continuity(s):
+    """Continuity with the volume correction (method.md eq. 3, after Asai et al. 2012)::
+
+        int q (div v_{n+1} + (alpha / rho) (rho - rho~) / dt) dx
+          + int q (p - p_n) / (K dt) dx_lumped
+
+    ``rho~`` is the smoothed density of eq. (2), ``rho~_i = sum_p W_i(x_p) m_p``,
+    ``W_i = N_i / int N_i dx``; where particles crowd (rho~ > rho) the correction
+    asks for expansion, where they thin out for contraction.
+
+    The last term is the water's own compressibility (bulk modulus K, 2.2 GPa;
+    ``compressibility`` = 1/K) with ``p_n`` the particle's pressure of the last
+    step (ours, not in method.md). It changes nothing measurable in the bulk, but
+    it gives every pressure function a diagonal: the pressure of a splash of a few
+    particles is otherwise singular (PSPG sees it only at those particles).
+    """
+    du, p = ufl.split(s.grid("U"))
+    _, q = s.test
+    dt, beta, gamma, alpha = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("alpha")
+    rho = s.particle("density")
+    rho_smooth = s.grid("smoothed_density")
+    v_new = newmark_velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
+    compression = s.constant("compressibility") * (p - s.particle("pressure")) / dt
+    return (q * (ufl.div(v_new) + alpha / rho * (rho - rho_smooth) / dt) * s.dx
+            + q * compression * s.dx_lumped)
+
+
+def pspg(s):
+    """Pressure-stabilising Petrov-Galerkin term (Tezduyar 1992; eq. 1, K_v^stab and K_p^stab)::
+
+        int (tau / rho) grad q . (rho (v_{n+1} - v_n) / dt + grad p - rho g) dx
+
+    the momentum residual (without its viscous part, as in method.md eq. 1) tested
+    with ``grad q``; it gives the continuity rows a pressure diagonal, so equal-order
+    velocity and pressure work. The inertia is the step's mean acceleration
+    ``(v_{n+1} - v_n) / dt``: with the trapezoidal rule the end-point ``a_{n+1}``
+    alternates in sign from step to step, and fed into the pressure it made the
+    pressure in the corner of the dam break grow by a factor -2 per step from 0.13 s.
+    """
+    du, p = ufl.split(s.grid("U"))
+    _, q = s.test
+    rho, v_p = s.particle("density"), s.particle("velocity")
+    dt, beta, mu = s.constant("dt"), s.constant("beta"), s.constant("mu")
+    tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), dt, s.h, mu / rho)
+    v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
+    mean_acceleration = (newmark_velocity(du, v_n, a_n, dt, beta, s.constant("gamma")) - v_n) / dt
+    residual = rho * mean_acceleration + ufl.grad(p) - rho * s.constant("gravity")
+    return s.constant("pspg") * tau / rho * ufl.inner(ufl.grad(q), residual) * s.dx
+
+
+def residual(s):
+    """The residual of a step: momentum + continuity + PSPG (method.md eq. 1)."""
+    return momentum(s) + continuity(s) + pspg(s)
