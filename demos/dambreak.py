@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -43,10 +42,10 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 import fempm
-from fempm import diagnostics, output
+from fempm import diagnostics, output, recording
 from fempm.errors import FempmError
-from fempm.implicit import ImplicitOptions, ImplicitSolver, SimulationDiverged
-from fempm.progress import Progress
+from fempm.implicit import ImplicitOptions, ImplicitSolver
+from fempm.recording import Recorder, RecorderOptions
 
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference" / "dambreak"
 TANK, WIDTH, HEIGHT = 0.584, 0.146, 0.292
@@ -111,88 +110,35 @@ def build(args, comm=MPI.COMM_WORLD) -> ImplicitSolver:
 def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
     """Run the dam break of ``args``; returns the summary (also written to summary.json)."""
     PETSc.Options().insertString(" ".join(petsc_args))
-    out = output.prepare_folder(args.out, comm)
     solver = build(args, comm)
-    water, h = solver.particles, solver.grid.h
-    initial_cells = diagnostics.occupied_cells(water)
-    front, volume = [(0.0, diagnostics.front_position(water))], [(0.0, initial_cells)]
-    particles_out = None if args.no_files else output.ParticleSeries(out)
-    grid_out = None if args.no_files else output.GridSeries(out, solver.vector_space, solver.scalar_space)
-    snapshot_times = [t for t in (0.2, 0.6) if t <= args.end_time + 1e-12]
-    pressure_scale = (0.0, 1000.0 * GRAVITY * HEIGHT)
-    progress = Progress(args.end_time, comm) if not args.quiet else None
-    next_output, status, cause = 0.0, "completed", None
-    n_steps = int(round(args.end_time / args.dt))
-    wall0 = time.perf_counter()
-    p_min, p_max, div_max = np.inf, -np.inf, 0.0
-    try:
-        for _ in range(n_steps):
-            start = time.perf_counter()
-            solver.step()
-            t = solver.time
-            front.append((t, diagnostics.front_position(water)))
-            volume.append((t, diagnostics.occupied_cells(water)))
-            low, high = diagnostics.pressure_range(water)
-            p_min, p_max, div_max = min(p_min, low), max(p_max, high), max(div_max, solver.max_divergence)
-            if not args.no_files:
-                if t >= next_output - 1e-12:
-                    particles_out.write(water, t)
-                    grid_out.write(solver.velocity, solver.pressure, t)
-                    next_output += args.output_interval
-                for ts in [ts for ts in snapshot_times if abs(t - ts) < 0.5 * args.dt]:
-                    output.snapshot(out / f"snapshot_t{ts:.3f}.png", water, title=f"t = {ts:.3f} s",
-                                    clim=pressure_scale)
-            if progress:
-                progress.update(t, time.perf_counter() - start)
-    except SimulationDiverged as e:
-        status, cause = "stopped", str(e)
-    finally:
-        if progress:
-            progress.close()
-        if grid_out:
-            grid_out.close()
-    wall = time.perf_counter() - wall0
-    summary = finish(args, solver, out, front, volume, initial_cells, status, cause, wall,
-                     (p_min, p_max), div_max, comm)
-    if not args.no_files:
-        output.snapshot(out / "snapshot_final.png", water, title=f"t = {solver.time:.3f} s ({status})",
-                        clim=pressure_scale)
+    recorder = Recorder(solver, RecorderOptions(
+        folder=args.out, output_interval=args.output_interval, snapshot_times=(0.2, 0.6),
+        files=not args.no_files, pressure_scale=(0.0, 1000.0 * GRAVITY * HEIGHT),
+        extra={"cells": args.cells, "particles_per_cell": args.ppc**2, "dt": args.dt,
+               "pspg": not args.no_pspg, "alpha": solver.options.alpha},
+    ))
+    summary = recording.run(solver, args.end_time, recorder, progress=not args.quiet)
+    compare_front(recorder, summary, comm)
     return summary
 
 
-# %% compare with the experiment, write the tables, plot
-def finish(args, solver, out, front, volume, initial_cells, status, cause, wall, p_range, div_max, comm):
-    """Write front.csv, volume.csv, front.png and summary.json; return the summary."""
-    front = np.array(front)
+# %% compare the front with the experiment, write it and plot it
+def compare_front(recorder, summary, comm):
+    """Front error against Koshizuka-Oka (T <= 3); front.csv, front.png; completes summary.json."""
+    front = np.array(recorder.front)
     T = front[:, 0] * np.sqrt(2 * GRAVITY / WIDTH)
     Z = front[:, 1] / WIDTH
     experiment = load_reference("koshizuka_oka_1996_experiment.csv")
     error = diagnostics.front_error(T, Z, experiment) if T[-1] > 0.3 else None
-    h = solver.grid.h
-    floor = solver.grid.upper[0] - solver.grid.lower[0]
-    summary = {
-        "status": status, "cause": cause, "time": solver.time, "steps": solver.steps,
-        "particles": solver.particles.global_count(), "basis": solver.basis.name,
-        "cells": args.cells, "particles_per_cell": args.ppc ** 2, "dt": args.dt,
-        "pspg": not args.no_pspg, "alpha": solver.options.alpha,
-        "front_rms_error_vs_koshizuka_oka": error,
-        "wall_time_s": wall, "wall_time_by_phase_s": dict(solver.timings),
-        "pressure_min_Pa": p_range[0], "pressure_max_Pa": p_range[1],
-        "max_abs_div_v_per_s": div_max,
-        "occupied_cells_initial": initial_cells, "occupied_cells_final": volume[-1][1],
-        "mean_depth_final_m": volume[-1][1] * h * h / floor,
-        "newton_iterations": solver.newton_iterations,
-    }
+    summary["front_rms_error_vs_koshizuka_oka"] = error
     if comm.rank == 0:
+        out = recorder.folder
         output.write_csv(out / "front.csv", ["t", "front_m", "T", "Z"],
                          [(t, x, Ti, Zi) for (t, x), Ti, Zi in zip(front, T, Z)],
-                         comment="surge front: largest particle x plus half a particle spacing; T = t sqrt(2g/L), Z = x/L, L = 0.146 m")
-        output.write_csv(out / "volume.csv", ["t", "occupied_cells", "occupied_area_m2", "mean_depth_m"],
-                         [(t, c, c * h * h, c * h * h / floor) for t, c in volume],
-                         comment="cells holding particles; mean depth = occupied area / floor width")
+                         comment="surge front: largest particle x plus half a particle spacing; "
+                                 "T = t sqrt(2g/L), Z = x/L, L = 0.146 m")
         output.write_json(out / "summary.json", summary)
         plot_front(out / "front.png", T, Z, error, summary)
-    return summary
 
 
 def plot_front(path, T, Z, error, summary):
