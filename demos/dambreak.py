@@ -70,7 +70,7 @@ def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--no-volume-correction", action="store_true", help="alpha = 0 (method.md eq. 3)")
     parser.add_argument("--alpha", type=float, default=ImplicitOptions.alpha, help="volume correction")
     parser.add_argument("--walls", choices=("slip", "no-slip"), default="slip")
-    parser.add_argument("--pic", type=float, default=0.0, help="PIC share of the FLIP/PIC blend, 0..1")
+    parser.add_argument("--pic", type=float, default=ImplicitOptions.pic_blend, help="PIC share of the FLIP/PIC blend, 0..1")
     parser.add_argument("--viscosity", type=float, default=1.0e-3, help="Pa s")
     parser.add_argument("--forms", default="incompressible", help="weak forms file (default forms/incompressible.py)")
     parser.add_argument("--out", type=Path, default=Path("results/dambreak"), help="output folder")

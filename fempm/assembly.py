@@ -160,11 +160,12 @@ def _nodal_coefficients(base, w, lf, G, slot_pos, slot_col, zero_pos):
 
 @numba.njit(cache=True)
 def assemble_matrix_lumped(kernel, values, indptr, stencil, x, weight, phi0, lfun, coeffs, consts,
-                           perm, h, G, slot_pos, slot_col, zero_pos):
+                           perm, h, G, slot_pos, slot_col, zero_pos, per_function):
     """Nodal (row-sum lumped) quadrature of a bilinear form into CSR ``values``.
 
     ``A[(f, C), (f, D)] += w_p N_f(x_p) K[(C, 0), (D, 0)]`` with the kernel evaluated
-    with every grid function taken at function ``f`` (its coefficient).
+    with every grid function taken at function ``f`` (its coefficient); once per
+    particle when ``per_function`` is false (the integrand has no grid function).
     """
     n, nl = phi0.shape
     bs, nq = perm.shape
@@ -178,9 +179,10 @@ def assemble_matrix_lumped(kernel, values, indptr, stencil, x, weight, phi0, lfu
         _jet_cell(x[p], h, coords)
         for l in range(nl):
             f = lfun[p, l]
-            _nodal_coefficients(coeffs[p], w, f, G, slot_pos, slot_col, zero_pos)
-            K[:] = 0.0
-            kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+            if per_function or l == 0:
+                _nodal_coefficients(coeffs[p], w, f, G, slot_pos, slot_col, zero_pos)
+                K[:] = 0.0
+                kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
             scale = weight[p] * phi0[p, l]
             s = stencil[f, centre]
             for C in range(bs):

@@ -167,7 +167,11 @@ class ImplicitSolver:
         self.timings: dict[str, float] = defaultdict(float)
         self.pressure_limit = options.pressure_limit or 20 * 1000.0 * 9.81 * (
             self.grid.upper[1] - self.grid.lower[1])
-        self._wall_dofs = self._walls()
+        self._p2g_space = Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1})
+        self._R = self.space.create_vector()
+        self._delta = self.J.createVecLeft()
+        owned_dofs = self.space.local_to_global[: self.space.num_owned_dofs]
+        self._wall_positions = np.searchsorted(owned_dofs, self._walls())
         self._reference_density = self.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
         self._integrals = _normalisation(basis, particles)[self.scalar_space.numbering.local_functions]
 
@@ -197,45 +201,57 @@ class ImplicitSolver:
 
     # -- phases ------------------------------------------------------------------------
     def project(self) -> np.ndarray:
-        """P2G: grid velocity and acceleration, smoothed density; returns the free dofs."""
+        """P2G: grid velocity and acceleration, smoothed density; returns the free dofs.
+
+        One scatter carries mass, momentum, mass-weighted acceleration and particle
+        counts: ``m_i``, ``v_i = (m v)_i / m_i``, ``a_i = (m a)_i / m_i``,
+        ``rho~_i = m_i / int N_i dx`` (eq. 2).
+        """
         p = self.particles
-        mass = transfer.lumped_mass(self.scalar_space, p)
-        m = mass.values[:, :1]
-        safe = np.where(m > 0, m, 1.0)
-        for name, field_ in (("grid_velocity", "velocity"), ("grid_acceleration", "acceleration")):
-            momentum = transfer.particles_to_grid(self.vector_space, p, p["mass"][:, None] * p[field_])
-            self.grid_fields[name].values[:] = np.where(m > 0, momentum.values / safe, 0.0)
+        mass = p["mass"][:, None]
+        sums = transfer.particles_to_grid(
+            self._p2g_space, p, np.hstack([mass, mass * p["velocity"], mass * p["acceleration"]]),
+            counts=True).values
+        m = sums[:, :1]
+        has_mass = m > 0
+        safe = np.where(has_mass, m, 1.0)
+        self.grid_fields["grid_velocity"].values[:] = np.where(has_mass, sums[:, 1:3] / safe, 0.0)
+        self.grid_fields["grid_acceleration"].values[:] = np.where(has_mass, sums[:, 3:5] / safe, 0.0)
         rho = self.grid_fields["smoothed_density"]
         rho.values[:] = m / self._integrals[:, None]
-        # functions whose support holds less than a fraction of material are left out
-        fraction = rho.values[:, 0] / self._reference_density
+        # functions whose support holds less than a fraction of material are left out; the
+        # pressure also where a particle fixes at most three numbers (value, gradient) and
+        # there are fewer than a third as many particles as a cell has functions
         owned = self.scalar_space.numbering.num_owned
-        keep = np.repeat(fraction[:owned] >= self.options.min_support_fraction, self.space.bs)
-        # a particle fixes at most three pressure numbers (value, gradient; PSPG and continuity):
-        # a pressure function needs a third as many particles as a cell has functions
-        counts = self.space.particle_counts(p)[:owned]
-        enough = counts >= -(-self.basis.functions_per_cell // 3)
-        keep.reshape(-1, self.space.bs)[:, 2] &= (fraction[:owned] >= self.options.min_pressure_support) & enough
-        active = self.space.local_to_global[: self.space.num_owned_dofs][keep]
-        return np.setdiff1d(active, self._wall_dofs, assume_unique=True)
+        fraction = rho.values[:owned, 0] / self._reference_density
+        keep = np.repeat(fraction >= self.options.min_support_fraction, self.space.bs)
+        enough = sums[:owned, 5] >= -(-self.basis.functions_per_cell // 3)
+        keep.reshape(-1, self.space.bs)[:, 2] &= (fraction >= self.options.min_pressure_support) & enough
+        keep[self._wall_positions] = False
+        self._free_mask = keep
+        return self.space.local_to_global[: self.space.num_owned_dofs][keep]
 
     def solve(self, free: np.ndarray):
-        """Newton's method on R(U) = 0 over the free dofs, starting from U = 0."""
+        """Newton's method on R(U) = 0 over the free dofs, starting from U = 0.
+
+        When R is affine in U (the shipped forms) one iteration solves it exactly and
+        no second residual is assembled.
+        """
         U = self.U.vector
         U.array[:] = 0.0
-        r0 = None
+        r0 = norm = None
         for iteration in range(self.options.newton_max_it):
             with self._phase("assemble"):
-                R = self.residual_form.assemble_vector(self.particles)
-                norm = _free_norm(R, free, self.space)
-                if r0 is None:
-                    r0 = norm
-                if iteration > 0 and norm <= self.options.newton_rtol * max(r0, 1e-300):
-                    break
+                R = self.residual_form.assemble_vector(self.particles, self._R)
+                if not self.linear:
+                    norm = self._free_norm(R)
+                    r0 = norm if r0 is None else r0
+                    if iteration > 0 and norm <= self.options.newton_rtol * max(r0, 1e-300):
+                        break
                 J = self.jacobian_form.assemble_matrix(self.particles, self.J)
             with self._phase("solve"):
                 R.petsc_vec.scale(-1.0)
-                delta = self.linear_solver.solve(J, R.petsc_vec, free)
+                delta = self.linear_solver.solve(J, R.petsc_vec, free, self._delta)
                 U.array[: self.space.num_owned_dofs] += delta.getArray(readonly=True)
                 U.scatter_forward()
             self.newton_iterations += 1
@@ -246,6 +262,10 @@ class ImplicitSolver:
         else:
             raise SolveFailed(f"Newton did not converge in {self.options.newton_max_it} iterations "
                               f"(|R| = {norm:.3e}, |R0| = {r0:.3e})")
+
+    def _free_norm(self, R) -> float:
+        local = R.array[: self.space.num_owned_dofs][self._free_mask]
+        return float(np.sqrt(self.comm.allreduce(np.dot(local, local))))
 
     def update_particles(self):
         """G2P: FLIP (or FLIP/PIC blend) velocity and acceleration, x += du, particle pressure.
@@ -287,7 +307,7 @@ class ImplicitSolver:
 
     # -- helpers -----------------------------------------------------------------------
     def _walls(self) -> np.ndarray:
-        """Owned velocity dofs held at zero on the walls (normal component, or both)."""
+        """Global numbers of the owned velocity dofs held at zero on the walls."""
         if self.options.walls == "no-slip":
             dofs = [self.space.wall_dofs("u", c) for c in range(2)]
         else:
@@ -306,9 +326,4 @@ def _normalisation(basis: Basis, particles: Particles) -> np.ndarray:
         return basis.lattice_integrals(int(round(side)))
     return basis.integrals
 
-
-def _free_norm(R, free, space) -> float:
-    owned = space.local_to_global[: space.num_owned_dofs]
-    local = R.array[: space.num_owned_dofs][np.isin(owned, free, assume_unique=True)]
-    return float(np.sqrt(space.comm.allreduce(np.dot(local, local))))
 

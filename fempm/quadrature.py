@@ -36,6 +36,7 @@ import basix
 import basix.ufl
 import numpy as np
 import ufl
+import ufl.algorithms
 from cffi import FFI
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -345,6 +346,10 @@ class ParticleForm:
             self._kernels[ufcx.form_integral_ids[i]] = _KERNEL_TYPE(address)
         original = form.coefficients()
         self._coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
+        lumped = [i for i in ufl.algorithms.expand_derivatives(form).integrals() if i.subdomain_id() in (_LUMPED, (_LUMPED,))]
+        lumped_grid = {c for i in lumped for c in ufl.algorithms.extract_coefficients(i.integrand())
+                       if symbols.used.get(c, ("",))[0] == "grid"}
+        self._lumped_per_function = bool(lumped_grid)  # else one kernel call per particle will do
         self._perm = target.jet_cell.dof_index(space.fields)
         self._jet_cell = target.jet_cell
 
@@ -424,6 +429,7 @@ class ParticleForm:
             assembly.assemble_matrix_lumped(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
                 np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, *self._nodal_slots(),
+                self._lumped_per_function,
             )
         return target.finalize()
 

@@ -214,16 +214,6 @@ class Space:
         return dolfinx.la.vector(self.numbering.index_map, self.bs)
 
     # -- particle support -------------------------------------------------------------
-    def particle_counts(self, particles) -> np.ndarray:
-        """Number of particles in the support of each local function (owned and ghost), all ranks."""
-        counts = dolfinx.la.vector(self.numbering.index_map, 1)
-        counts.array[:] = 0.0
-        _, lfun = self.tabulate_particles(particles, order=0)
-        np.add.at(counts.array, lfun.ravel(), 1.0)
-        counts.scatter_reverse(dolfinx.la.InsertMode.add)
-        counts.scatter_forward()
-        return counts.array.copy()
-
     def support(self, particles) -> Support:
         """Which functions have a particle in some cell of their support, on any rank."""
         flag = dolfinx.la.vector(self.numbering.index_map, 1)

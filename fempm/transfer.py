@@ -33,23 +33,32 @@ __all__ = [
 
 
 @numba.njit(cache=True)
-def _scatter(phi0, lfun, values, out):
-    """``out[lfun[p, l], c] += phi0[p, l] * values[p, c]`` over particles ``p``."""
+def _scatter(phi0, lfun, values, out, counts):
+    """``out[lfun[p, l], c] += phi0[p, l] * values[p, c]`` over particles ``p``; with
+    ``counts`` also ``out[lfun[p, l], -1] += 1``."""
+    nc = values.shape[1]
     for p in range(phi0.shape[0]):
         for l in range(phi0.shape[1]):
             f = lfun[p, l]
-            for c in range(values.shape[1]):
+            for c in range(nc):
                 out[f, c] += phi0[p, l] * values[p, c]
+            if counts:
+                out[f, nc] += 1.0
 
 
-def particles_to_grid(space: Space, particles, values, name: str = "p2g") -> GridFunction:
-    """``Q_i = sum_p values_p N_i(x_p)`` for ``values`` of shape ``(n,)`` or ``(n, bs)``."""
+def particles_to_grid(space: Space, particles, values, name: str = "p2g", counts: bool = False) -> GridFunction:
+    """``Q_i = sum_p values_p N_i(x_p)`` for ``values`` of shape ``(n,)`` or ``(n, bs)``.
+
+    With ``counts`` the space has one component more, the last, which receives the
+    number of particles in each function's support.
+    """
     values = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(len(particles), -1))
-    if values.shape[1] != space.bs:
+    if values.shape[1] + counts != space.bs:
         raise ValueError(f"P2G: {values.shape[1]} components given for a space of {space.bs}")
     phi, lfun = space.tabulate_particles(particles, order=0)
     out = GridFunction(space, name)
-    _scatter(np.ascontiguousarray(phi[:, 0, :]), lfun, values, out.values)
+    out.values[:] = 0.0
+    _scatter(np.ascontiguousarray(phi[:, 0, :]), lfun, values, out.values, counts)
     out.scatter_reverse_add()
     out.scatter_forward()
     return out

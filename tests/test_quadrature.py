@@ -192,3 +192,40 @@ def test_form_errors_name_the_cause(comm):
     form = fempm.ParticleForm(lambda s: s.trial * s.test * s.dx, space, particles)
     with pytest.raises(InputError, match="bilinear form, not a linear form"):
         form.assemble_vector(particles)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("Basis", BASES)
+def test_lumped_quadrature_gives_the_p2g_masses_on_the_diagonal(comm, Basis):
+    """dx_lumped: the mass matrix is diagonal with the P2G masses; a residual takes nodal values."""
+    from fempm import transfer
+
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.2)
+    space = fempm.Space(Basis(grid), {"u": 2, "p": 1})
+    particles = random_particles(grid, [0, 2, 5, 1])
+    A = fempm.ParticleForm(
+        lambda s: s.particle("density") * ufl.inner(s.trial[0], s.test[0]) * s.dx_lumped, space, particles,
+    ).assemble_matrix(particles)
+    masses = transfer.lumped_mass(fempm.Space(space.basis, {"m": 1}), particles).values[:, 0]
+    owned = space.numbering.num_owned
+    diagonal = A.getDiagonal().getArray().reshape(-1, 3)
+    np.testing.assert_allclose(diagonal[:, :2], np.column_stack([masses[:owned]] * 2), rtol=1e-13, atol=1e-10)
+    assert A.norm() == pytest.approx(np.sqrt(comm.allreduce(2 * np.sum(masses[:owned] ** 2))), rel=1e-13)
+
+    U = fempm.GridFunction(space, "U")
+    U.values[:] = np.random.default_rng(3).random(U.values.shape)
+    U.scatter_forward()
+    b = fempm.ParticleForm(
+        lambda s: s.particle("density") * ufl.inner(ufl.split(s.grid("U"))[0], s.test[0]) * s.dx_lumped,
+        space, particles, grid_functions={"U": U},
+    ).assemble_vector(particles)
+    np.testing.assert_allclose(b.array.reshape(-1, 3)[:owned, :2], masses[:owned, None] * U.values[:owned, :2],
+                               rtol=1e-12, atol=1e-10)
+
+
+def test_lumped_integrand_may_not_take_derivatives(comm):
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 1.0), 0.25)
+    space = fempm.Space(fempm.Q1(grid), {"u": 1})
+    particles = fempm.Particles(grid)
+    with pytest.raises(InputError, match="dx_lumped may not take derivatives"):
+        fempm.ParticleForm(lambda s: ufl.inner(ufl.grad(s.trial), ufl.grad(s.test)) * s.dx_lumped, space, particles)
