@@ -2,7 +2,7 @@
 # One entry point for a fresh machine: creates the project environment (.venv, Python 3.12)
 # if it is missing, installs fempm into it, then runs the main job or the tests.
 #
-#   ./run.sh demo [flags]         the main demo (results/ under the repository)
+#   ./run.sh demo [flags]         the dam break of the seed (results/dambreak/)
 #   ./run.sh test [pytest flags]     the whole test suite (serial, then 2 MPI ranks inside it)
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -41,7 +41,7 @@ setup() {
 job=${1:-}
 shift || true
 case "$job" in
-  demo)     setup; exec python demos/stokes_particles.py "$@" ;;
+  demo)     setup; exec python demos/dambreak.py "$@" ;;
   test)     setup; exec python -m pytest "$@" ;;
   *) echo "usage: ./run.sh demo [flags] | ./run.sh test [pytest flags]" >&2; exit 2 ;;
 esac

@@ -33,10 +33,12 @@ class LinearSolver:
         self.comm = comm
         self.prefix = prefix
         opts = PETSc.Options()
-        defaults = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
-        for key, value in {**defaults, **(options or {})}.items():
-            if not opts.hasName(prefix + key) or key in (options or {}):
-                opts[prefix + key] = value
+        options = dict(options or {})
+        chosen = set(options) | {key for key in ("ksp_type", "pc_type") if opts.hasName(prefix + key)}
+        if not chosen & {"ksp_type", "pc_type"}:  # nothing chosen: direct LU by MUMPS
+            options = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps", **options}
+        for key, value in options.items():
+            opts[prefix + key] = value
         self.ksp = PETSc.KSP().create(comm)
         self.ksp.setOptionsPrefix(prefix)
         self.ksp.setFromOptions()
