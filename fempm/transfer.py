@@ -52,7 +52,8 @@ def particles_to_grid(space: Space, particles, values, name: str = "p2g", counts
     With ``counts`` the space has one component more, the last, which receives the
     number of particles in each function's support.
     """
-    values = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(len(particles), -1))
+    values = np.asarray(values, dtype=np.float64)
+    values = np.ascontiguousarray(values.reshape(len(particles), int(np.prod(values.shape[1:], dtype=int))))
     if values.shape[1] + counts != space.bs:
         raise ValueError(f"P2G: {values.shape[1]} components given for a space of {space.bs}")
     phi, lfun = space.tabulate_particles(particles, order=0)
