@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-__all__ = ["front_position", "occupied_cells", "pressure_range", "front_error"]
+__all__ = ["front_error", "front_position", "occupied_cells", "pressure_range", "surface_height"]
 
 
 def front_position(particles, axis: int = 0) -> float:
@@ -22,6 +22,19 @@ def front_position(particles, axis: int = 0) -> float:
 def occupied_cells(particles) -> int:
     """Number of grid cells holding at least one particle (method.md Fig. 4's measure)."""
     return particles.grid.comm.allreduce(len(np.unique(particles.cell)))
+
+
+def surface_height(particles) -> float:
+    """Height of the free surface of a settled layer: the median over the grid's columns of
+    the top of their highest particle (its y plus half a particle spacing), above the grid's
+    bottom. Columns without particles are left out."""
+    grid = particles.grid
+    column = particles.cell % grid.nx
+    top = np.full(grid.nx, -np.inf)
+    np.maximum.at(top, column, particles.x[:, 1] + 0.5 * np.sqrt(particles["volume"]))
+    top = grid.comm.allreduce(top, op=MPI.MAX)
+    occupied = np.isfinite(top)
+    return float(np.median(top[occupied]) - grid.lower[1]) if np.any(occupied) else 0.0
 
 
 def pressure_range(particles) -> tuple[float, float]:

@@ -50,7 +50,7 @@ class Recorder:
         particles = solver.particles
         self.initial_cells = diagnostics.occupied_cells(particles)
         self.front = [(solver.time, diagnostics.front_position(particles))]
-        self.cells = [(solver.time, self.initial_cells)]
+        self.cells = [(solver.time, self.initial_cells, diagnostics.surface_height(particles))]
         self.pressure_min, self.pressure_max, self.max_divergence = np.inf, -np.inf, 0.0
         self.particle_series = output.ParticleSeries(self.folder) if options.files else None
         self.grid_series = (output.GridSeries(self.folder, solver.vector_space, solver.scalar_space)
@@ -63,7 +63,7 @@ class Recorder:
         s, particles = self.solver, self.solver.particles
         t = s.time
         self.front.append((t, diagnostics.front_position(particles)))
-        self.cells.append((t, diagnostics.occupied_cells(particles)))
+        self.cells.append((t, diagnostics.occupied_cells(particles), diagnostics.surface_height(particles)))
         low, high = diagnostics.pressure_range(particles)
         self.pressure_min, self.pressure_max = min(self.pressure_min, low), max(self.pressure_max, high)
         self.max_divergence = max(self.max_divergence, s.max_divergence)
@@ -94,12 +94,15 @@ class Recorder:
             "max_abs_div_v_per_s": self.max_divergence,
             "occupied_cells_initial": self.initial_cells, "occupied_cells_final": self.cells[-1][1],
             "mean_depth_final_m": self.cells[-1][1] * h * h / floor,
+            "surface_height_final_m": self.cells[-1][2],
             **self.options.extra,
         }
         if comm.rank == 0:
-            output.write_csv(self.folder / "volume.csv", ["t", "occupied_cells", "occupied_area_m2", "mean_depth_m"],
-                             [(t, c, c * h * h, c * h * h / floor) for t, c in self.cells],
-                             comment="cells holding particles; mean depth = occupied area / floor width")
+            output.write_csv(self.folder / "volume.csv",
+                             ["t", "occupied_cells", "occupied_area_m2", "mean_depth_m", "surface_height_m"],
+                             [(t, c, c * h * h, c * h * h / floor, z) for t, c, z in self.cells],
+                             comment="cells holding particles; mean depth = occupied area / floor width; "
+                                     "surface height = median over columns of the top particle's top")
         if self.options.files:
             output.snapshot(self.folder / "snapshot_final.png", s.particles,
                             title=f"t = {s.time:.3f} s ({status})", clim=self.options.pressure_scale)
