@@ -32,7 +32,7 @@ def surface_height(particles) -> float:
     column = particles.cell % grid.nx
     top = np.full(grid.nx, -np.inf)
     np.maximum.at(top, column, particles.x[:, 1] + 0.5 * np.sqrt(particles["volume"]))
-    top = grid.comm.allreduce(top, op=MPI.MAX)
+    grid.comm.Allreduce(MPI.IN_PLACE, top, op=MPI.MAX)
     occupied = np.isfinite(top)
     return float(np.median(top[occupied]) - grid.lower[1]) if np.any(occupied) else 0.0
 

@@ -210,8 +210,14 @@ class Space:
         return gm.finalize()
 
     def create_vector(self) -> dolfinx.la.Vector:
-        """A DOLFINx vector with ghosts (``.array`` is owned then ghost dofs)."""
-        return dolfinx.la.vector(self.numbering.index_map, self.bs)
+        """A DOLFINx vector with ghosts (``.array`` is owned then ghost dofs).
+
+        Its ``petsc_vec`` keeps the vector alive, so ``form.assemble_vector(p).petsc_vec``
+        is safe to keep.
+        """
+        vector = dolfinx.la.vector(self.numbering.index_map, self.bs)
+        vector.petsc_vec.setAttr("fempm_owner", vector)
+        return vector
 
     # -- particle support -------------------------------------------------------------
     def support(self, particles) -> Support:

@@ -126,3 +126,19 @@ def test_forty_seconds_of_dambreak_keep_the_volume_only_with_the_correction(tmp_
         assert depth == pytest.approx(0.073, rel=0.10)
     else:
         assert depth < 0.9 * 0.073
+
+
+@pytest.mark.mpi
+def test_the_demo_writes_its_files_on_any_number_of_ranks(tmp_path):
+    comm = MPI.COMM_WORLD
+    out = Path(comm.bcast(str(tmp_path), root=0)) / "dambreak"
+    args, _ = dambreak.parse_arguments(["--end-time", "0.02", "--output-interval", "0.01", "--quiet",
+                                        "--out", str(out)])
+    summary = dambreak.run(args)
+    assert summary["status"] == "completed" and summary["particles"] == 800
+    if comm.rank == 0:
+        for name in ("front.csv", "volume.csv", "summary.json", "particles.pvd", "snapshot_final.png"):
+            assert (out / name).stat().st_size > 0, name
+        assert len(list(out.glob("particles_*.vtp"))) == 3  # t = 0, 0.01, 0.02
+        volume = np.loadtxt(out / "volume.csv", delimiter=",", skiprows=2)
+        assert volume[0, 1] == 200 and volume[0, 4] == pytest.approx(H)
