@@ -149,23 +149,27 @@ def assemble_vector(kernel, out, x, cell, weight, phi, lfun, coeffs, consts, per
 
 
 @numba.njit(cache=True)
-def _nodal_coefficients(base, w, lf, G, slot_pos, slot_col, zero_pos):
-    """Coefficients with the grid functions taken at function ``lf``: values, no derivatives."""
-    w[:] = base
+def _nodal_kernel(kernel, K, w, coeffs_p, f, nodal, consts, coords):
+    """``K`` = the kernel with every grid function taken at function ``f``: its coefficient
+    as the value, no derivatives (``nodal = (G, slot_pos, slot_col, zero_pos)``)."""
+    G, slot_pos, slot_col, zero_pos = nodal
+    w[:] = coeffs_p
     for s in range(slot_pos.shape[0]):
-        w[slot_pos[s]] = G[lf, slot_col[s]]
+        w[slot_pos[s]] = G[f, slot_col[s]]
     for s in range(zero_pos.shape[0]):
         w[zero_pos[s]] = 0.0
+    K[:] = 0.0
+    kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
 
 
 @numba.njit(cache=True)
 def assemble_matrix_lumped(kernel, values, indptr, stencil, x, weight, phi0, lfun, coeffs, consts,
-                           perm, h, G, slot_pos, slot_col, zero_pos, per_function):
+                           perm, h, nodal, per_function):
     """Nodal (row-sum lumped) quadrature of a bilinear form into CSR ``values``.
 
     ``A[(f, C), (f, D)] += w_p N_f(x_p) K[(C, 0), (D, 0)]`` with the kernel evaluated
-    with every grid function taken at function ``f`` (its coefficient); once per
-    particle when ``per_function`` is false (the integrand has no grid function).
+    with every grid function taken at function ``f``; once per particle when
+    ``per_function`` is false (the integrand has no grid function).
     """
     n, nl = phi0.shape
     bs, nq = perm.shape
@@ -180,9 +184,7 @@ def assemble_matrix_lumped(kernel, values, indptr, stencil, x, weight, phi0, lfu
         for l in range(nl):
             f = lfun[p, l]
             if per_function or l == 0:
-                _nodal_coefficients(coeffs[p], w, f, G, slot_pos, slot_col, zero_pos)
-                K[:] = 0.0
-                kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+                _nodal_kernel(kernel, K, w, coeffs[p], f, nodal, consts, coords)
             scale = weight[p] * phi0[p, l]
             s = stencil[f, centre]
             for C in range(bs):
@@ -193,8 +195,7 @@ def assemble_matrix_lumped(kernel, values, indptr, stencil, x, weight, phi0, lfu
 
 
 @numba.njit(cache=True)
-def assemble_vector_lumped(kernel, out, x, weight, phi0, lfun, coeffs, consts, perm, h,
-                           G, slot_pos, slot_col, zero_pos):
+def assemble_vector_lumped(kernel, out, x, weight, phi0, lfun, coeffs, consts, perm, h, nodal, per_function):
     """Nodal (row-sum lumped) quadrature of a linear form: ``b[(f, C)] += w_p N_f(x_p) k[(C, 0)]``."""
     n, nl = phi0.shape
     bs, nq = perm.shape
@@ -205,9 +206,8 @@ def assemble_vector_lumped(kernel, out, x, weight, phi0, lfun, coeffs, consts, p
         _jet_cell(x[p], h, coords)
         for l in range(nl):
             f = lfun[p, l]
-            _nodal_coefficients(coeffs[p], w, f, G, slot_pos, slot_col, zero_pos)
-            K[:] = 0.0
-            kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+            if per_function or l == 0:
+                _nodal_kernel(kernel, K, w, coeffs[p], f, nodal, consts, coords)
             scale = weight[p] * phi0[p, l]
             for C in range(bs):
                 out[bs * f + C] += scale * K[perm[C, 0]]

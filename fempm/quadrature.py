@@ -428,7 +428,7 @@ class ParticleForm:
         if _LUMPED in self._kernels:
             assembly.assemble_matrix_lumped(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
-                np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, *self._nodal_slots(),
+                np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, self._nodal_slots(),
                 self._lumped_per_function,
             )
         return target.finalize()
@@ -449,7 +449,7 @@ class ParticleForm:
         if _LUMPED in self._kernels:
             assembly.assemble_vector_lumped(
                 self._kernels[_LUMPED], b.array, particles.x, weight, np.ascontiguousarray(phi[:, 0, :]),
-                lfun, coeffs, consts, self._perm, h, *self._nodal_slots(),
+                lfun, coeffs, consts, self._perm, h, self._nodal_slots(), self._lumped_per_function,
             )
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return b
