@@ -95,6 +95,7 @@ class Recorder:
             "occupied_cells_initial": self.initial_cells, "occupied_cells_final": self.cells[-1][1],
             "mean_depth_final_m": self.cells[-1][1] * h * h / floor,
             "surface_height_final_m": self.cells[-1][2],
+            "wall_stops": getattr(s, "wall_stops", 0),
             **self.options.extra,
         }
         if comm.rank == 0:
