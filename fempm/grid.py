@@ -49,6 +49,8 @@ class Grid:
             rank, or -1 where this rank does not own the cell.
         owned_cells: structured indices of the cells this rank owns, in DOLFINx's
             local order.
+        blocked: ``blocked[cell]`` is True for the cells of rigid obstacles (see
+            :meth:`block`); no material may enter them.
     """
 
     def __init__(self, comm: MPI.Comm, lower, upper, h: float):
@@ -82,6 +84,7 @@ class Grid:
         self.owner = np.empty(self.num_cells, dtype=np.int32)
         for rank, cells in enumerate(owned_by_rank):
             self.owner[cells] = rank
+        self.blocked = np.zeros(self.num_cells, dtype=bool)
 
     @classmethod
     def from_cells(cls, comm: MPI.Comm, lower, upper, cells) -> "Grid":
@@ -98,6 +101,18 @@ class Grid:
                 f"{upper[0] - lower[0]:g} x {upper[1] - lower[1]:g} give hx = {hx:g}, hy = {hy:g}"
             )
         return cls(comm, lower, upper, hx)
+
+    def block(self, cells):
+        """Mark the given structured cells as rigid obstacle (in addition to earlier ones).
+
+        Solvers hold the velocity at zero on every basis function that is non-zero in
+        a blocked cell, and particles that enter one are treated as having left the
+        grid (:meth:`fempm.Particles.relocate`).
+        """
+        cells = np.asarray(cells, dtype=np.int64).ravel()
+        if np.any((cells < 0) | (cells >= self.num_cells)):
+            raise InputError(f"grid: blocked cells must be in [0, {self.num_cells}), got {cells.min()}..{cells.max()}")
+        self.blocked[cells] = True
 
     def cell_index(self, i, j):
         """Structured cell number of column ``i`` and row ``j``."""
