@@ -39,6 +39,7 @@ from fempm.space import GridFunction, Space
 __all__ = ["ImplicitOptions", "ImplicitSolver", "SimulationDiverged"]
 
 WALLS = ("slip", "no-slip")
+SIDES = ("left", "right", "bottom", "top")
 
 
 class SimulationDiverged(FempmError):
@@ -62,7 +63,10 @@ class ImplicitOptions:
         bulk_modulus: K of the fluid (Pa), enters as 1/K (``inf``: strictly incompressible).
         pspg: PSPG stabilisation on (method.md: without it the run diverges).
         pic_blend: 0 = pure FLIP, 1 = pure PIC, in between a blend of the two.
-        walls: ``"slip"`` (zero normal velocity) or ``"no-slip"`` on the four walls.
+        walls: ``"slip"`` (zero normal velocity) or ``"no-slip"`` on the four walls, or a
+            mapping of side (``left``, ``right``, ``bottom``, ``top``) to one of them
+            (sides not named are slip). Cells blocked by obstacles (``Grid.block``) are
+            no-slip: every function non-zero in one has its velocity held at zero.
         newton_rtol, newton_max_it: Newton stops when ||R|| <= rtol ||R_0||.
         min_support_fraction: basis functions whose support holds less material than this
             fraction of ``rho * int N_i dx`` are left out of the solve (their dofs held at
@@ -82,7 +86,7 @@ class ImplicitOptions:
     pspg: bool = True
     bulk_modulus: float = 2.2e9
     pic_blend: float = 0.0
-    walls: str = "slip"
+    walls: str | dict = "slip"
     newton_rtol: float = 1e-8
     newton_max_it: int = 8
     pressure_limit: float | None = None
@@ -102,10 +106,19 @@ class ImplicitOptions:
             raise InputError(f"bulk_modulus must be positive (inf for none), got {self.bulk_modulus}")
         if self.viscosity < 0:
             raise InputError(f"viscosity must be >= 0, got {self.viscosity}")
-        if self.walls not in WALLS:
-            raise InputError(f"walls must be one of {WALLS}, got {self.walls!r}")
+        for side, kind in self.wall_conditions().items():
+            if side not in SIDES:
+                raise InputError(f"walls: unknown side {side!r}; the sides are {SIDES}")
+            if kind not in WALLS:
+                raise InputError(f"walls.{side} must be one of {WALLS}, got {kind!r}")
         if not (0 < self.beta <= 0.5 and 0 < self.gamma <= 1):
             raise InputError(f"Newmark needs 0 < beta <= 1/2 and 0 < gamma <= 1, got {self.beta}, {self.gamma}")
+
+    def wall_conditions(self) -> dict[str, str]:
+        """The condition on each side, ``{"left": "slip", ...}``."""
+        if isinstance(self.walls, str):
+            return dict.fromkeys(SIDES, self.walls)
+        return {**dict.fromkeys(SIDES, "slip"), **self.walls}
 
 
 class ImplicitSolver:
@@ -156,7 +169,7 @@ class ImplicitSolver:
         expanded = ufl.algorithms.expand_derivatives(self.jacobian_form.ufl_form)
         self.linear = unknown not in expanded.coefficients()  # R affine in U: one Newton step
         self.J = self.space.create_matrix()
-        self.linear_solver = LinearSolver(self.comm, "fempm_", options.petsc_options)
+        self.linear_solver = LinearSolver(self.comm, "fempm_", options.petsc_options, fields=self.space.fields)
         self.time = 0.0
         self.steps = 0
         self.newton_iterations = 0
@@ -278,11 +291,12 @@ class ImplicitSolver:
 
     # -- helpers -----------------------------------------------------------------------
     def _walls(self) -> np.ndarray:
-        """Owned velocity dofs held at zero on the walls (normal component, or both)."""
-        if self.options.walls == "no-slip":
-            dofs = [self.space.wall_dofs("u", c) for c in range(2)]
-        else:
-            dofs = [self.space.wall_dofs("u", 0, "lr"), self.space.wall_dofs("u", 1, "bt")]
+        """Owned velocity dofs held at zero: on the walls (normal component, or both) and obstacles."""
+        dofs = [self.space.cell_dofs("u", np.flatnonzero(self.grid.blocked))]
+        for side, kind in self.options.wall_conditions().items():
+            normal = 0 if side in ("left", "right") else 1
+            for component in (0, 1) if kind == "no-slip" else (normal,):
+                dofs.append(self.space.wall_dofs("u", component, side[0]))
         return np.unique(np.concatenate(dofs))
 
 
