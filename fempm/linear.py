@@ -7,7 +7,8 @@ the region the material covers. PETSc options pass through the options database
 under the solver's prefix, e.g. ``-fempm_ksp_type gmres``. Two sets of options are
 named here:
 
-* :data:`DIRECT` (the default): LU by MUMPS, for small and medium problems;
+* :data:`DIRECT` (the default): LU by MUMPS, for small and medium problems (on several
+  ranks sequential MUMPS on every rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: FGMRES preconditioned by a Schur-complement field split of the
   velocity-pressure system (Elman, Silvester & Wathen 2014, ch. 9), the velocity
   block and the ``selfp`` approximation of the Schur complement
@@ -27,9 +28,22 @@ from petsc4py import PETSc
 
 from fempm.errors import InputError
 
-__all__ = ["DIRECT", "ITERATIVE", "LinearSolver", "SolveFailed", "check_options", "set_options"]
+__all__ = ["DIRECT", "ITERATIVE", "LinearSolver", "SolveFailed", "check_options", "direct_options", "set_options"]
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
+# MUMPS's parallel factorisation schedules its work dynamically, so on several ranks its
+# result changes in the last bits from one run to the next (measured: fronts of two
+# identical 2-rank dam breaks part at 1e-16 m after ~70 steps). On several ranks every rank
+# therefore factors a gathered copy with sequential MUMPS: reproducible runs and restarts,
+# the same numbers on any number of ranks; large problems take ITERATIVE.
+_DIRECT_PARALLEL = {"ksp_type": "preonly", "pc_type": "redundant", "redundant_pc_type": "lu",
+                    "redundant_pc_factor_mat_solver_type": "mumps"}
+
+
+def direct_options(comm) -> dict:
+    """The direct solver's options for ``comm``: :data:`DIRECT`, made reproducible on several ranks."""
+    return DIRECT if comm.size == 1 else {**_DIRECT_PARALLEL, "pc_redundant_number": comm.size}
+
 
 _AMG = ({"pc_type": "hypre", "pc_hypre_type": "boomeramg"} if PETSc.Sys.hasExternalPackage("hypre")
         else {"pc_type": "gamg"})
@@ -52,7 +66,7 @@ class LinearSolver:
         comm: communicator of the matrices.
         prefix: PETSc options prefix (``-{prefix}ksp_type`` ...).
         options: PETSc options set under the prefix before the first solve,
-            e.g. ``{"ksp_type": "gmres"}``; :data:`DIRECT` when neither these nor the
+            e.g. ``{"ksp_type": "gmres"}``; :func:`direct_options` when neither these nor the
             options database choose a ``ksp_type`` or ``pc_type`` under the prefix.
         fields: components per field of the interleaved dofs (``{"u": 2, "p": 1}``);
             with ``pc_type fieldsplit`` the splits are these fields, by name.
@@ -67,7 +81,7 @@ class LinearSolver:
         for key, value in (options or {}).items():
             opts[prefix + key] = value
         if not any(opts.hasName(prefix + key) for key in ("ksp_type", "pc_type")):
-            for key, value in DIRECT.items():
+            for key, value in direct_options(comm).items():
                 opts[prefix + key] = value
         self.ksp = _ksp_from_options(comm, prefix)
 
@@ -143,7 +157,7 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
     given fields (every rank holds four functions), so options that PETSc reads only
     while setting up a preconditioner are seen too. An option PETSc never read is a
     misspelling or belongs to a solver not in use; its message suggests close names.
-    The offending option is removed from the options database.
+    On an error every option under ``prefix`` is removed from the options database.
     """
     names = list(names)
     opts = PETSc.Options()
@@ -153,21 +167,19 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
     except PETSc.Error as e:
         culprit = _rejected_option(comm, prefix, fields, names)
         value = opts.getString(prefix + culprit, "") if culprit else ""
-        if culprit:
-            opts.delValue(prefix + culprit)
+        set_options({}, prefix)  # nothing will run with them (and PETSc would list them as unused)
         raise InputError(_rejection_message(where, culprit, value, e)) from None
     finally:
         PETSc.Sys.popErrorHandler()
-    for name in names:
-        if not opts.used(prefix + name):
-            opts.delValue(prefix + name)
-            close = difflib.get_close_matches(name, _KNOWN_OPTIONS, n=3)
-            hint = f"; did you mean {' or '.join(close)}?" if close else ""
-            raise InputError(
-                f"{where}.{name}: PETSc did not use this option (-{prefix}{name}) with the solver "
-                f"set up ({opts.getString(prefix + 'ksp_type', '?')} / {opts.getString(prefix + 'pc_type', '?')}):"
-                f" a misspelling, or an option of another solver{hint}"
-            )
+    unused = [name for name in names if not opts.used(prefix + name)]
+    if unused:
+        name = unused[0]
+        solver = f"{opts.getString(prefix + 'ksp_type', '?')} / {opts.getString(prefix + 'pc_type', '?')}"
+        set_options({}, prefix)
+        close = difflib.get_close_matches(name, _KNOWN_OPTIONS, n=3)
+        hint = f"; did you mean {' or '.join(close)}?" if close else ""
+        raise InputError(f"{where}.{name}: PETSc did not use this option (-{prefix}{name}) with the solver set up "
+                         f"({solver}): a misspelling, or an option of another solver{hint}")
 
 
 def _trial_solve(comm, prefix: str, fields: dict[str, int] | None):
@@ -241,7 +253,7 @@ _ALLOWED_TYPES = {
 
 # Names offered as corrections of a misspelt option (not a limit on what may be given).
 _KNOWN_OPTIONS = sorted({
-    *DIRECT, *ITERATIVE, "ksp_monitor", "ksp_view", "ksp_converged_reason", "ksp_gmres_restart",
+    *DIRECT, *_DIRECT_PARALLEL, *ITERATIVE, "ksp_monitor", "ksp_view", "ksp_converged_reason", "ksp_gmres_restart",
     "pc_factor_mat_ordering_type", "mat_mumps_icntl_14", "mat_mumps_icntl_24", "pc_gamg_threshold",
     "pc_gamg_agg_nsmooths", "pc_hypre_boomeramg_strong_threshold", "fieldsplit_u_ksp_rtol",
     "fieldsplit_p_ksp_rtol", "fieldsplit_u_ksp_type", "fieldsplit_p_ksp_type", "pc_fieldsplit_type",

@@ -44,7 +44,8 @@ def _scatter(phi0, lfun, values, out):
 
 def particles_to_grid(space: Space, particles, values, name: str = "p2g") -> GridFunction:
     """``Q_i = sum_p values_p N_i(x_p)`` for ``values`` of shape ``(n,)`` or ``(n, bs)``."""
-    values = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(len(particles), -1))
+    values = np.asarray(values, dtype=np.float64)
+    values = np.ascontiguousarray(values.reshape(len(particles), -1 if values.size else space.bs))
     if values.shape[1] != space.bs:
         raise ValueError(f"P2G: {values.shape[1]} components given for a space of {space.bs}")
     phi, lfun = space.tabulate_particles(particles, order=0)

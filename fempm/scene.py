@@ -1,0 +1,581 @@
+"""Scenes: a study written once as a TOML file, validated whole before anything runs.
+
+A scene names the tank (``[domain]``), the water (``[fluid]``, ``[[bodies]]``), rigid
+``[[obstacles]]``, the ``[walls]``, ``gravity``, the ``[time]`` span, the ``[solver]``
+and the ``[output]`` (see the README for a complete example). :func:`load_scene`
+reads and checks a file into a frozen :class:`Scene`; every mistake raises one
+:class:`~fempm.errors.InputError` naming the key and what it accepts. :func:`to_toml`
+writes a scene back, with every default filled in (``fempm check`` prints it, a
+checkpoint stores it).
+
+Checks that need geometry are done here too, by arithmetic on the structured grid
+(no mesh is built): bodies and obstacles inside the domain, bodies at least two
+cells across and seeding at least one particle, bodies clear of obstacle cells,
+obstacles covering at least one cell centre.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+import numpy as np
+
+from fempm.errors import InputError
+from fempm.formsfile import FORMS_DIR
+from fempm.grid import cell_counts, square_cell_size
+from fempm.particles import Polygon, Rectangle, sub_cell_centres
+
+__all__ = ["Body", "Domain", "Fluid", "Obstacle", "Output", "Scene", "Solver", "Time", "Walls",
+           "load_scene", "parse_scene", "scene_from_text", "to_toml"]
+
+_REQUIRED = object()
+
+
+class _Bad(ValueError):
+    """A value's problem; the caller adds the key."""
+
+
+# -- value checks: each converts a TOML value or raises _Bad saying what is allowed ----------------
+def _number(value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _Bad(f"must be a number, got {type(value).__name__} {value!r}")
+    return float(value)
+
+
+def positive(value) -> float:
+    """A finite number > 0."""
+    x = _number(value)
+    if not (math.isfinite(x) and x > 0):
+        raise _Bad(f"must be a number > 0, got {value!r}")
+    return x
+
+
+def positive_or_inf(value) -> float:
+    """A number > 0, or ``inf``."""
+    x = _number(value)
+    if not x > 0:
+        raise _Bad(f"must be a number > 0 (inf allowed), got {value!r}")
+    return x
+
+
+def non_negative(value) -> float:
+    """A finite number >= 0."""
+    x = _number(value)
+    if not (math.isfinite(x) and x >= 0):
+        raise _Bad(f"must be a number >= 0, got {value!r}")
+    return x
+
+
+def fraction(value) -> float:
+    """A number in [0, 1]."""
+    x = _number(value)
+    if not 0 <= x <= 1:
+        raise _Bad(f"must be a number in [0, 1], got {value!r}")
+    return x
+
+
+def boolean(value) -> bool:
+    """``true`` or ``false``."""
+    if not isinstance(value, bool):
+        raise _Bad(f"must be true or false, got {value!r}")
+    return value
+
+
+def text(value) -> str:
+    """A non-empty string."""
+    if not isinstance(value, str) or not value:
+        raise _Bad(f"must be a non-empty string, got {value!r}")
+    return value
+
+
+def choice(*allowed: str):
+    """One of the given strings."""
+    def check(value) -> str:
+        if value not in allowed:
+            raise _Bad(f"must be one of {', '.join(repr(a) for a in allowed)}, got {value!r}")
+        return value
+    return check
+
+
+def point(value) -> tuple[float, float]:
+    """A pair of finite numbers ``[x, y]``."""
+    if not isinstance(value, list) or len(value) != 2:
+        raise _Bad(f"must be a pair of numbers [x, y], got {value!r}")
+    x = tuple(_number(v) for v in value)
+    if not all(math.isfinite(v) for v in x):
+        raise _Bad(f"must be a pair of finite numbers, got {value!r}")
+    return x
+
+
+def points(value) -> tuple[tuple[float, float], ...]:
+    """A list of at least three points ``[[x, y], ...]``."""
+    if not isinstance(value, list) or len(value) < 3:
+        raise _Bad(f"must be a list of at least three points [[x, y], ...], got {value!r}")
+    return tuple(point(v) for v in value)
+
+
+def cell_count_pair(value) -> tuple[int, int]:
+    """A pair of whole numbers >= 1 ``[nx, ny]``."""
+    if (not isinstance(value, list) or len(value) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value)):
+        raise _Bad(f"must be a pair of whole numbers >= 1 [nx, ny], got {value!r}")
+    return tuple(value)
+
+
+def cell_list(value) -> tuple[tuple[int, int], ...]:
+    """A non-empty list of cells ``[[column, row], ...]`` (whole numbers from 0)."""
+    if (not isinstance(value, list) or not value
+            or not all(isinstance(c, list) and len(c) == 2
+                       and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in c)
+                       for c in value)):
+        raise _Bad(f"must be a non-empty list of cells [[column, row], ...] (whole numbers >= 0), got {value!r}")
+    return tuple(tuple(c) for c in value)
+
+
+def square_count(value) -> int:
+    """A perfect square >= 1 (1, 4, 9, ...): particles per cell on an n x n lattice."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1 or math.isqrt(value) ** 2 != value:
+        raise _Bad(f"must be a square number 1, 4, 9, 16, ... (n x n particles per cell), got {value!r}")
+    return value
+
+
+def times(value) -> tuple[float, ...]:
+    """A list of times >= 0."""
+    if not isinstance(value, list):
+        raise _Bad(f"must be a list of times in seconds, got {value!r}")
+    return tuple(non_negative(v) for v in value)
+
+
+def petsc_table(value) -> dict[str, str]:
+    """A table of PETSc option names (without ``-`` and prefix) to strings, numbers or booleans."""
+    if not isinstance(value, dict):
+        raise _Bad(f"must be a table of PETSc options, e.g. {{ ksp_rtol = 1e-8 }}, got {value!r}")
+    out = {}
+    for name, v in value.items():
+        if isinstance(v, dict | list):
+            raise _Bad(f"option {name!r} must have a string, number or boolean value, got {v!r}")
+        out[name.lstrip("-")] = str(v).lower() if isinstance(v, bool) else str(v)
+    return out
+
+
+def _key(check, default=_REQUIRED, unit: str = ""):
+    """A scene key: its check, its default (none: required) and its unit (for messages)."""
+    metadata = {"check": check, "required": default is _REQUIRED, "unit": unit}
+    if isinstance(default, dict):
+        return field(default_factory=dict, metadata=metadata)
+    return field(default=None if default is _REQUIRED else default, metadata=metadata)
+
+
+# -- the sections ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Domain:
+    """The tank: a rectangle cut into square cells, given by ``cells`` or by ``cell_size``."""
+
+    lower: tuple[float, float] = _key(point, unit="m")
+    upper: tuple[float, float] = _key(point, unit="m")
+    cells: tuple[int, int] | None = _key(cell_count_pair, None)
+    cell_size: float | None = _key(positive, None, unit="m")
+
+    @property
+    def h(self) -> float:
+        """The cell size."""
+        return square_cell_size(self.lower, self.upper, self.cells) if self.cells else self.cell_size
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Cells per direction."""
+        return tuple(self.cells) if self.cells else cell_counts(self.lower, self.upper, self.cell_size)
+
+
+@dataclass(frozen=True)
+class Fluid:
+    """The fluid's properties (SI units)."""
+
+    density: float = _key(positive, 1000.0, unit="kg/m^3")
+    viscosity: float = _key(non_negative, 1.0e-3, unit="Pa s")
+    bulk_modulus: float = _key(positive_or_inf, 2.2e9, unit="Pa")
+
+
+@dataclass(frozen=True)
+class Body:
+    """A region filled with fluid at the start: a rectangle or a polygon."""
+
+    shape: str = _key(choice("rectangle", "polygon"))
+    lower: tuple[float, float] | None = _key(point, None, unit="m")
+    upper: tuple[float, float] | None = _key(point, None, unit="m")
+    vertices: tuple[tuple[float, float], ...] | None = _key(points, None, unit="m")
+    particles_per_cell: int = _key(square_count, 4)
+    velocity: tuple[float, float] = _key(point, (0.0, 0.0), unit="m/s")
+
+    def geometry(self) -> Rectangle | Polygon:
+        """The shape as a :class:`~fempm.Rectangle` or :class:`~fempm.Polygon`."""
+        return Rectangle(self.lower, self.upper) if self.shape == "rectangle" else Polygon(self.vertices)
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A rigid obstacle: the cells whose centres lie in a rectangle or polygon, or listed cells."""
+
+    shape: str = _key(choice("rectangle", "polygon", "cells"))
+    lower: tuple[float, float] | None = _key(point, None, unit="m")
+    upper: tuple[float, float] | None = _key(point, None, unit="m")
+    vertices: tuple[tuple[float, float], ...] | None = _key(points, None, unit="m")
+    cells: tuple[tuple[int, int], ...] | None = _key(cell_list, None)
+
+    def blocked_cells(self, domain: Domain) -> np.ndarray:
+        """Structured indices of the cells this obstacle blocks."""
+        nx, ny = domain.shape
+        if self.shape == "cells":
+            return np.array([i + nx * j for i, j in self.cells], dtype=np.int64)
+        shape = Rectangle(self.lower, self.upper) if self.shape == "rectangle" else Polygon(self.vertices)
+        all_cells = np.arange(nx * ny)
+        centres = np.asarray(domain.lower) + domain.h * (np.stack([all_cells % nx, all_cells // nx], -1) + 0.5)
+        return all_cells[shape.contains(centres)]
+
+
+_WALL = choice("slip", "no-slip")
+
+
+@dataclass(frozen=True)
+class Walls:
+    """The condition on each side of the tank: ``slip`` (zero normal velocity) or ``no-slip``."""
+
+    left: str = _key(_WALL, "slip")
+    right: str = _key(_WALL, "slip")
+    bottom: str = _key(_WALL, "slip")
+    top: str = _key(_WALL, "slip")
+
+
+@dataclass(frozen=True)
+class Time:
+    """The simulated span and the time step."""
+
+    end: float = _key(positive, unit="s")
+    dt: float = _key(positive, unit="s")
+
+    @property
+    def steps(self) -> int:
+        """Steps from 0 to ``end``."""
+        return round(self.end / self.dt)
+
+
+@dataclass(frozen=True)
+class Solver:
+    """Discretisation and solver options (see ``fempm.implicit.ImplicitOptions``)."""
+
+    basis: str = _key(choice("bspline", "q1"), "bspline")
+    linear: str = _key(choice("direct", "iterative"), "direct")
+    pspg: bool = _key(boolean, True)
+    volume_correction: float = _key(fraction, 0.1)
+    pic_blend: float = _key(fraction, 0.0)
+    newmark_beta: float = _key(positive, 0.25)
+    newmark_gamma: float = _key(positive, 0.5)
+    forms: str = _key(text, "incompressible")
+    petsc: dict = _key(petsc_table, {})
+
+
+@dataclass(frozen=True)
+class Output:
+    """What a run writes, and how often (intervals in simulated seconds; absent: not written)."""
+
+    folder: str = _key(text)
+    progress: bool = _key(boolean, True)
+    particles_interval: float | None = _key(positive, None, unit="s")
+    grid_interval: float | None = _key(positive, None, unit="s")
+    snapshots: tuple[float, ...] = _key(times, (), unit="s")
+    final_snapshot: bool = _key(boolean, False)
+    pressure_scale: tuple[float, float] | None = _key(point, None, unit="Pa")
+    checkpoint_interval: float | None = _key(positive, None, unit="s")
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A whole study; build it with :func:`load_scene` or :func:`parse_scene`."""
+
+    name: str
+    gravity: tuple[float, float]
+    domain: Domain
+    fluid: Fluid
+    bodies: tuple[Body, ...]
+    obstacles: tuple[Obstacle, ...]
+    walls: Walls
+    time: Time
+    solver: Solver
+    output: Output
+
+    def blocked_cells(self) -> np.ndarray:
+        """Structured indices of all obstacle cells."""
+        cells = [o.blocked_cells(self.domain) for o in self.obstacles]
+        return np.unique(np.concatenate(cells)) if cells else np.zeros(0, dtype=np.int64)
+
+
+_TOP = {"name": text, "gravity": point}
+_SECTIONS = {"domain": Domain, "fluid": Fluid, "walls": Walls, "time": Time, "solver": Solver, "output": Output}
+_LISTS = {"bodies": Body, "obstacles": Obstacle}
+
+
+# -- reading ------------------------------------------------------------------------------------------
+def load_scene(path: str | Path, folder: str | Path | None = None, end_time: float | None = None) -> Scene:
+    """Read and check the scene file ``path``; ``folder`` and ``end_time`` override
+    ``output.folder`` and ``time.end``."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"scene file {str(path)!r} does not exist" if not path.exists()
+                         else f"scene file {str(path)!r} is not a file")
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise InputError(f"{path}: not a text file") from None
+    return scene_from_text(text, path, folder, end_time)
+
+
+def scene_from_text(text: str, source: str | Path, folder: str | Path | None = None,
+                    end_time: float | None = None) -> Scene:
+    """Check a scene given as TOML text (see :func:`load_scene`)."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{source}: not valid TOML: {e}") from None
+    if folder is not None:
+        data.setdefault("output", {})["folder"] = str(folder)
+    if end_time is not None:
+        data.setdefault("time", {})["end"] = end_time
+    return parse_scene(data, source=source)
+
+
+def parse_scene(data: dict, source: str | Path = "scene") -> Scene:
+    """Check a scene given as the dictionary of its TOML file and resolve its defaults.
+
+    Relative ``solver.forms`` files are taken from the folder of ``source``.
+
+    Raises:
+        InputError: the first mistake, as ``source: key = value: what is allowed``.
+    """
+    source = Path(source)
+    try:
+        scene = _parse(data, source)
+        _check_geometry(scene)
+        _check_times(scene)
+    except InputError as e:
+        raise InputError(f"{source}: {e}") from None
+    return scene
+
+
+def _parse(data: dict, source: Path) -> Scene:
+    _unknown(data, [*_TOP, *_SECTIONS, *_LISTS], "the scene")
+    values = {}
+    for name, check in _TOP.items():
+        values[name] = _value(check, data.get(name, None), name)
+    values["name"] = values["name"] or source.stem
+    values["gravity"] = values["gravity"] or (0.0, -9.81)
+    for name, cls in _SECTIONS.items():
+        table = data.get(name, {})
+        if not isinstance(table, dict):
+            raise InputError(f"{name} must be a table [{name}], got {table!r}")
+        if name == "output":
+            table = {"folder": f"results/{values['name'].replace(' ', '_')}", **table}
+        values[name] = _section(cls, table, name)
+    for name, cls in _LISTS.items():
+        tables = data.get(name, [])
+        if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+            raise InputError(f"{name} must be an array of tables [[{name}]], got {tables!r}")
+        values[name] = tuple(_section(cls, t, f"{name}[{k}]") for k, t in enumerate(tables))
+    if not values["bodies"]:
+        raise InputError("the scene has no fluid: add at least one [[bodies]] table")
+    solver = values["solver"]
+    if solver.forms.endswith(".py") and not Path(solver.forms).is_absolute():
+        solver = replace(solver, forms=str((source.parent / solver.forms).resolve()))
+        values["solver"] = solver
+    forms = Path(solver.forms) if solver.forms.endswith(".py") else FORMS_DIR / f"{solver.forms}.py"
+    if not forms.is_file():
+        raise InputError(f"solver.forms = {solver.forms!r}: no such forms file ({forms}); give a bare name "
+                         f"of forms/ (e.g. 'incompressible') or a path ending in .py")
+    folder = Path(values["output"].folder)
+    if folder.exists() and not folder.is_dir():
+        raise InputError(f"output.folder = {str(folder)!r}: exists and is not a folder; name a folder")
+    return Scene(**values)
+
+
+def _unknown(table: dict, allowed, where: str):
+    for key in table:
+        if key not in allowed:
+            close = difflib.get_close_matches(key, allowed, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise InputError(f"unknown key {key!r} in {where}{hint}; allowed: {', '.join(allowed)}")
+
+
+def _value(check, value, where: str, unit: str = ""):
+    if value is None:
+        return None
+    try:
+        return check(value)
+    except _Bad as e:
+        raise InputError(f"{where}: {e}{f' ({unit})' if unit else ''}") from None
+
+
+def _section(cls, table: dict, where: str):
+    keys = [f.name for f in fields(cls)]
+    _unknown(table, keys, f"[{where}]")
+    values = {}
+    for f in fields(cls):
+        if f.name not in table:
+            if f.metadata["required"]:
+                raise InputError(f"{where}.{f.name} is missing: {f.metadata['check'].__doc__}"
+                                 + (f" ({f.metadata['unit']})" if f.metadata["unit"] else ""))
+            values[f.name] = f.default_factory() if f.default is MISSING else f.default
+        else:
+            values[f.name] = _value(f.metadata["check"], table[f.name], f"{where}.{f.name}", f.metadata["unit"])
+    _check_shape_keys(cls, values, table, where)
+    return cls(**values)
+
+
+_SHAPE_KEYS = {"rectangle": ("lower", "upper"), "polygon": ("vertices",), "cells": ("cells",)}
+
+
+def _check_shape_keys(cls, values: dict, table: dict, where: str):
+    """A body or obstacle has exactly the keys its shape needs."""
+    if cls not in (Body, Obstacle):
+        return
+    needed = _SHAPE_KEYS[values["shape"]]
+    for other in {k for ks in _SHAPE_KEYS.values() for k in ks} - set(needed):
+        if other in table:
+            raise InputError(f"{where}.{other}: a {values['shape']} takes {' and '.join(needed)}, not {other}")
+    for key in needed:
+        if key not in table:
+            raise InputError(f"{where}.{key} is missing: a {values['shape']} needs {' and '.join(needed)}")
+    try:
+        if values["shape"] != "cells":
+            (Rectangle(values["lower"], values["upper"]) if values["shape"] == "rectangle"
+             else Polygon(values["vertices"]))
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+
+
+# -- checks of the whole ---------------------------------------------------------------------------
+def _check_geometry(scene: Scene):
+    d = scene.domain
+    if (d.cells is None) == (d.cell_size is None):
+        raise InputError("domain: give exactly one of cells = [nx, ny] and cell_size = h")
+    try:
+        nx, ny = d.shape
+        h = d.h
+    except InputError as e:
+        raise InputError(f"domain.{'cells' if d.cells else 'cell_size'}: {e}") from None
+    lower, upper = np.asarray(d.lower), np.asarray(d.upper)
+    tol = 1e-9 * h
+    blocked = np.zeros(nx * ny, dtype=bool)
+    owner = np.full(nx * ny, -1)
+    for k, obstacle in enumerate(scene.obstacles):
+        where = f"obstacles[{k}]"
+        if obstacle.shape == "cells":
+            bad = [c for c in obstacle.cells if not (c[0] < nx and c[1] < ny)]
+            if bad:
+                raise InputError(f"{where}.cells: cell {list(bad[0])} is outside the grid of {nx} x {ny} cells "
+                                 f"(columns 0..{nx - 1}, rows 0..{ny - 1})")
+        else:
+            _inside_domain(obstacle, lower, upper, tol, where)
+        cells = obstacle.blocked_cells(d)
+        if len(cells) == 0:
+            raise InputError(f"{where}: covers no cell centre: the grid (h = {h:g} m) is too coarse for it; "
+                             f"refine domain.cells or domain.cell_size, or list its cells")
+        owner[cells[~blocked[cells]]] = k
+        blocked[cells] = True
+    if blocked.all():
+        raise InputError("obstacles: they block every cell of the domain")
+    earlier: list = []
+    for k, body in enumerate(scene.bodies):
+        where = f"bodies[{k}]"
+        _inside_domain(body, lower, upper, tol, where)
+        shape = body.geometry()
+        lo, up = shape.bounds()
+        if np.any(up - lo < 2 * h - tol):
+            raise InputError(f"{where}: it is {up[0] - lo[0]:g} x {up[1] - lo[1]:g} m, less than two cells across "
+                             f"(h = {h:g} m): the grid is too coarse for it; refine domain.cells or cell_size")
+        x, cells = _seed_points(body, d, lo, up)
+        inside = shape.contains(x)
+        for other in earlier:
+            inside &= ~other.contains(x)
+        if not inside.any():
+            raise InputError(f"{where}: seeds no particle (it lies within earlier bodies or between "
+                             f"particle positions); the grid is too coarse for it")
+        hit = inside & blocked[cells]
+        if hit.any():
+            c = cells[np.flatnonzero(hit)[0]]
+            raise InputError(f"{where} overlaps obstacles[{owner[c]}] (cell column {c % nx}, row {c // nx}); "
+                             f"move the body or the obstacle")
+        earlier.append(shape)
+
+
+def _inside_domain(item, lower, upper, tol, where):
+    lo, up = (np.asarray(item.lower), np.asarray(item.upper)) if item.shape == "rectangle" else (
+        np.min(item.vertices, axis=0), np.max(item.vertices, axis=0))
+    if np.any(lo < lower - tol) or np.any(up > upper + tol):
+        raise InputError(f"{where}: its extent {lo.tolist()}..{up.tolist()} is not inside the domain "
+                         f"{lower.tolist()}..{upper.tolist()}")
+
+
+def _seed_points(body: Body, d: Domain, lo, up) -> tuple[np.ndarray, np.ndarray]:
+    """The particle positions seeding would try in the cells under the body's box, and their cells."""
+    nx, ny = d.shape
+    first = np.clip(np.floor((lo - d.lower) / d.h).astype(int), 0, [nx - 1, ny - 1])
+    last = np.clip(np.ceil((up - d.lower) / d.h).astype(int), 1, [nx, ny])
+    i, j = np.meshgrid(np.arange(first[0], last[0]), np.arange(first[1], last[1]), indexing="xy")
+    cells = (i + nx * j).ravel()
+    origins = np.asarray(d.lower) + d.h * np.stack([cells % nx, cells // nx], -1)
+    n = math.isqrt(body.particles_per_cell)
+    return sub_cell_centres(origins, d.h, n), np.repeat(cells, n * n)
+
+
+def _check_times(scene: Scene):
+    t, o = scene.time, scene.output
+    if t.dt > t.end:
+        raise InputError(f"time.dt = {t.dt:g} exceeds time.end = {t.end:g}")
+    if abs(t.steps * t.dt - t.end) > 1e-9 * t.end:
+        raise InputError(f"time.end = {t.end:g} is not a whole number of steps of time.dt = {t.dt:g}")
+    for name in ("particles_interval", "grid_interval", "checkpoint_interval"):
+        value = getattr(o, name)
+        if value is not None and value < t.dt * (1 - 1e-9):
+            raise InputError(f"output.{name} = {value:g} is shorter than time.dt = {t.dt:g}: must be >= dt (s)")
+
+
+# -- writing ---------------------------------------------------------------------------------------
+def to_toml(scene: Scene) -> str:
+    """The scene as TOML with every default filled in; :func:`parse_scene` reads it back unchanged."""
+    data = _plain(asdict(scene))
+    top = [f"{k} = {_toml_value(v)}" for k, v in data.items() if k in _TOP]
+    parts = ["\n".join(top)]
+    for name in ("domain", "fluid", "bodies", "obstacles", "walls", "time", "solver", "output"):
+        items = data[name] if name in _LISTS else [data[name]]
+        for item in items:
+            header = f"[[{name}]]" if name in _LISTS else f"[{name}]"
+            lines = [header] + [f"{k} = {_toml_value(v)}" for k, v in item.items() if not isinstance(v, dict)]
+            for k, v in item.items():
+                if isinstance(v, dict):
+                    lines += [f"\n[{name}.{k}]"] + [f"{kk} = {_toml_value(vv)}" for kk, vv in v.items()]
+            parts.append("\n".join(lines))
+    return "\n\n".join(parts) + "\n"
+
+
+def _plain(value):
+    """Tuples to lists and keys with value None left out (TOML has no null)."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items() if v is not None}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, float):
+        return "inf" if value == math.inf else repr(value)
+    if isinstance(value, int):
+        return str(value)
+    return "[" + ", ".join(_toml_value(v) for v in value) + "]"
