@@ -226,6 +226,8 @@ def snapshot(path: str | Path, particles, field: str = "pressure", title: str = 
     plotter = pv.Plotter(off_screen=True, window_size=(900, 800))
     plotter.set_background("white")
     plotter.add_mesh(box.outline(), color="black", line_width=2)
+    if grid.blocked.any():
+        plotter.add_mesh(_cells_as_quads(grid, np.flatnonzero(grid.blocked)), color="gray")
     plotter.add_mesh(cloud, scalars=field, point_size=point_size, render_points_as_spheres=True,
                      cmap="viridis", clim=clim,
                      scalar_bar_args={"title": f"{field} (Pa)" if field == "pressure" else field,
@@ -238,3 +240,13 @@ def snapshot(path: str | Path, particles, field: str = "pressure", title: str = 
     with atomic_path(path) as tmp:
         plotter.screenshot(str(tmp))
     plotter.close()
+
+
+def _cells_as_quads(grid, cells):
+    """The given structured cells as one pyvista surface of squares (obstacles in pictures)."""
+    import pyvista as pv
+
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
+    points = (grid.cell_origin(cells)[:, None, :] + grid.h * corners[None]).reshape(-1, 2)
+    faces = np.column_stack([np.full(len(cells), 4), np.arange(4 * len(cells)).reshape(-1, 4)])
+    return pv.PolyData(np.column_stack([points, np.zeros(len(points))]), faces.ravel())

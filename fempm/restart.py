@@ -82,7 +82,7 @@ def read_checkpoint(folder: str | Path, comm) -> Checkpoint:
                 with np.load(path, allow_pickle=False) as f:
                     head = (str(f["scene"]), json.loads(str(f["meta"])))
                     arrays = {k[len(_PARTICLE):]: f[k] for k in f.files if k.startswith(_PARTICLE)}
-            except (OSError, KeyError, ValueError, zipfile.BadZipFile) as e:
+            except (OSError, EOFError, KeyError, ValueError, zipfile.BadZipFile) as e:
                 error = f"--resume {str(folder)!r}: {CHECKPOINT} cannot be read ({e})"
     error = comm.bcast(error, root=0)
     if error:

@@ -95,9 +95,11 @@ def text(value) -> str:
 def choice(*allowed: str):
     """One of the given strings."""
     def check(value) -> str:
+        """One of the allowed strings."""
         if value not in allowed:
             raise _Bad(f"must be one of {', '.join(repr(a) for a in allowed)}, got {value!r}")
         return value
+    check.__doc__ = f"One of {', '.join(repr(a) for a in allowed)}."
     return check
 
 
@@ -424,7 +426,8 @@ def _section(cls, table: dict, where: str):
     for f in fields(cls):
         if f.name not in table:
             if f.metadata["required"]:
-                raise InputError(f"{where}.{f.name} is missing: {f.metadata['check'].__doc__}"
+                wanted = f.metadata["check"].__doc__.rstrip(".").replace("``", "")
+                raise InputError(f"{where}.{f.name} is missing: give {wanted[0].lower()}{wanted[1:]}"
                                  + (f" ({f.metadata['unit']})" if f.metadata["unit"] else ""))
             values[f.name] = f.default_factory() if f.default is MISSING else f.default
         else:
