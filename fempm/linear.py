@@ -10,10 +10,14 @@ named here:
 * :data:`DIRECT` (the default): LU by MUMPS, for small and medium problems (on several
   ranks sequential MUMPS on every rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: FGMRES preconditioned by a Schur-complement field split of the
-  velocity-pressure system (Elman, Silvester & Wathen 2014, ch. 9), the velocity
-  block and the ``selfp`` approximation of the Schur complement
-  ``S ~ D - C diag(A)^-1 B`` each by one V-cycle of algebraic multigrid (hypre
-  BoomerAMG if this PETSc has it, else PETSc's GAMG), for large problems.
+  velocity-pressure system (Elman, Silvester & Wathen 2014, ch. 9), for large problems:
+  the ``selfp`` approximation of the Schur complement ``S ~ D - C diag(A)^-1 B`` by one
+  V-cycle of algebraic multigrid (hypre BoomerAMG if this PETSc has it, else PETSc's
+  GAMG), the velocity block by its diagonal: it is the lumped mass over ``beta dt^2``
+  plus a viscous part smaller by ``~ 2 mu dt / (rho h^2)`` (1e-3 for water in the dam
+  break), for which Jacobi is as good as a multigrid cycle at a fraction of the cost
+  (1e5 particles: 14 iterations, 1.1 s against 19 and 5.0 s with GAMG). Very viscous
+  flows may want ``fieldsplit_u_pc_type = "gamg"``.
 
 The field split needs the fields of the interleaved dofs; a solver given ``fields``
 (e.g. ``{"u": 2, "p": 1}``) builds one index set per field over the free dofs.
@@ -51,7 +55,7 @@ ITERATIVE = {
     "ksp_type": "fgmres", "ksp_rtol": 1e-10, "ksp_atol": 1e-50, "ksp_max_it": 200,
     "pc_type": "fieldsplit", "pc_fieldsplit_type": "schur",
     "pc_fieldsplit_schur_fact_type": "full", "pc_fieldsplit_schur_precondition": "selfp",
-    "fieldsplit_u_ksp_type": "preonly", **{f"fieldsplit_u_{k}": v for k, v in _AMG.items()},
+    "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
     "fieldsplit_p_ksp_type": "preonly", **{f"fieldsplit_p_{k}": v for k, v in _AMG.items()},
 }
 
