@@ -202,8 +202,16 @@ class Fluid:
     bulk_modulus: float = _key(positive_or_inf, 2.2e9, unit="Pa")
 
 
+class _Shaped:
+    """A body or obstacle drawn as a rectangle (``lower``, ``upper``) or a polygon (``vertices``)."""
+
+    def geometry(self) -> Rectangle | Polygon:
+        """The shape as a :class:`~fempm.Rectangle` or :class:`~fempm.Polygon`."""
+        return Rectangle(self.lower, self.upper) if self.shape == "rectangle" else Polygon(self.vertices)
+
+
 @dataclass(frozen=True)
-class Body:
+class Body(_Shaped):
     """A region filled with fluid at the start: a rectangle or a polygon."""
 
     shape: str = _key(choice("rectangle", "polygon"))
@@ -213,13 +221,9 @@ class Body:
     particles_per_cell: int = _key(square_count, 4)
     velocity: tuple[float, float] = _key(point, (0.0, 0.0), unit="m/s")
 
-    def geometry(self) -> Rectangle | Polygon:
-        """The shape as a :class:`~fempm.Rectangle` or :class:`~fempm.Polygon`."""
-        return Rectangle(self.lower, self.upper) if self.shape == "rectangle" else Polygon(self.vertices)
-
 
 @dataclass(frozen=True)
-class Obstacle:
+class Obstacle(_Shaped):
     """A rigid obstacle: the cells whose centres lie in a rectangle or polygon, or listed cells."""
 
     shape: str = _key(choice("rectangle", "polygon", "cells"))
@@ -233,10 +237,9 @@ class Obstacle:
         nx, ny = domain.shape
         if self.shape == "cells":
             return np.array([i + nx * j for i, j in self.cells], dtype=np.int64)
-        shape = Rectangle(self.lower, self.upper) if self.shape == "rectangle" else Polygon(self.vertices)
         all_cells = np.arange(nx * ny)
         centres = np.asarray(domain.lower) + domain.h * (np.stack([all_cells % nx, all_cells // nx], -1) + 0.5)
-        return all_cells[shape.contains(centres)]
+        return all_cells[self.geometry().contains(centres)]
 
 
 _WALL = choice("slip", "no-slip")
@@ -432,30 +435,29 @@ def _section(cls, table: dict, where: str):
             values[f.name] = f.default_factory() if f.default is MISSING else f.default
         else:
             values[f.name] = _value(f.metadata["check"], table[f.name], f"{where}.{f.name}", f.metadata["unit"])
-    _check_shape_keys(cls, values, table, where)
-    return cls(**values)
+    item = cls(**values)
+    if isinstance(item, _Shaped):
+        _check_shape_keys(item, table, where)
+    return item
 
 
 _SHAPE_KEYS = {"rectangle": ("lower", "upper"), "polygon": ("vertices",), "cells": ("cells",)}
 
 
-def _check_shape_keys(cls, values: dict, table: dict, where: str):
-    """A body or obstacle has exactly the keys its shape needs."""
-    if cls not in (Body, Obstacle):
-        return
-    needed = _SHAPE_KEYS[values["shape"]]
+def _check_shape_keys(item: _Shaped, table: dict, where: str):
+    """A body or obstacle has exactly the keys its shape needs, and they make a shape."""
+    needed = _SHAPE_KEYS[item.shape]
     for other in {k for ks in _SHAPE_KEYS.values() for k in ks} - set(needed):
         if other in table:
-            raise InputError(f"{where}.{other}: a {values['shape']} takes {' and '.join(needed)}, not {other}")
+            raise InputError(f"{where}.{other}: a {item.shape} takes {' and '.join(needed)}, not {other}")
     for key in needed:
         if key not in table:
-            raise InputError(f"{where}.{key} is missing: a {values['shape']} needs {' and '.join(needed)}")
-    try:
-        if values["shape"] != "cells":
-            (Rectangle(values["lower"], values["upper"]) if values["shape"] == "rectangle"
-             else Polygon(values["vertices"]))
-    except InputError as e:
-        raise InputError(f"{where}: {e}") from None
+            raise InputError(f"{where}.{key} is missing: a {item.shape} needs {' and '.join(needed)}")
+    if item.shape != "cells":
+        try:
+            item.geometry()
+        except InputError as e:
+            raise InputError(f"{where}: {e}") from None
 
 
 # -- checks of the whole ---------------------------------------------------------------------------
@@ -468,9 +470,14 @@ def _check_geometry(scene: Scene):
         h = d.h
     except InputError as e:
         raise InputError(f"domain.{'cells' if d.cells else 'cell_size'}: {e}") from None
-    lower, upper = np.asarray(d.lower), np.asarray(d.upper)
-    tol = 1e-9 * h
-    blocked = np.zeros(nx * ny, dtype=bool)
+    owner = _check_obstacles(scene, nx, ny, h)
+    _check_bodies(scene, owner, nx, h)
+
+
+def _check_obstacles(scene: Scene, nx: int, ny: int, h: float) -> np.ndarray:
+    """Obstacles inside the grid, each blocking a cell; returns the obstacle of each cell (-1: none)."""
+    d = scene.domain
+    lower, upper, tol = np.asarray(d.lower), np.asarray(d.upper), 1e-9 * h
     owner = np.full(nx * ny, -1)
     for k, obstacle in enumerate(scene.obstacles):
         where = f"obstacles[{k}]"
@@ -485,10 +492,16 @@ def _check_geometry(scene: Scene):
         if len(cells) == 0:
             raise InputError(f"{where}: covers no cell centre: the grid (h = {h:g} m) is too coarse for it; "
                              f"refine domain.cells or domain.cell_size, or list its cells")
-        owner[cells[~blocked[cells]]] = k
-        blocked[cells] = True
-    if blocked.all():
+        owner[cells[owner[cells] < 0]] = k
+    if np.all(owner >= 0):
         raise InputError("obstacles: they block every cell of the domain")
+    return owner
+
+
+def _check_bodies(scene: Scene, owner: np.ndarray, nx: int, h: float):
+    """Bodies inside the domain, resolved by the grid, seeding particles, clear of obstacles."""
+    d = scene.domain
+    lower, upper, tol = np.asarray(d.lower), np.asarray(d.upper), 1e-9 * h
     earlier: list = []
     for k, body in enumerate(scene.bodies):
         where = f"bodies[{k}]"
@@ -505,7 +518,7 @@ def _check_geometry(scene: Scene):
         if not inside.any():
             raise InputError(f"{where}: seeds no particle (it lies within earlier bodies or between "
                              f"particle positions); the grid is too coarse for it")
-        hit = inside & blocked[cells]
+        hit = inside & (owner[cells] >= 0)
         if hit.any():
             c = cells[np.flatnonzero(hit)[0]]
             raise InputError(f"{where} overlaps obstacles[{owner[c]}] (cell column {c % nx}, row {c // nx}); "
@@ -513,9 +526,8 @@ def _check_geometry(scene: Scene):
         earlier.append(shape)
 
 
-def _inside_domain(item, lower, upper, tol, where):
-    lo, up = (np.asarray(item.lower), np.asarray(item.upper)) if item.shape == "rectangle" else (
-        np.min(item.vertices, axis=0), np.max(item.vertices, axis=0))
+def _inside_domain(item: _Shaped, lower, upper, tol, where):
+    lo, up = item.geometry().bounds()
     if np.any(lo < lower - tol) or np.any(up > upper + tol):
         raise InputError(f"{where}: its extent {lo.tolist()}..{up.tolist()} is not inside the domain "
                          f"{lower.tolist()}..{upper.tolist()}")

@@ -10,6 +10,7 @@ fluid touches (``ImplicitSolver.project``).
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import asdict
 from pathlib import Path
 
@@ -83,6 +84,9 @@ def resume(folder: str | Path, comm=MPI.COMM_WORLD, end_time: float | None = Non
     """
     checkpoint = read_checkpoint(folder, comm)
     scene = scene_from_text(checkpoint.scene, Path(folder) / CHECKPOINT, folder=folder, end_time=end_time)
+    if checkpoint.ranks != comm.size and comm.rank == 0:
+        print(f"fempm: note: resuming on {comm.size} rank(s) a run checkpointed on {checkpoint.ranks}: it goes on "
+              f"correctly, but bit-identical continuation holds only on the same number of ranks", file=sys.stderr)
     if scene.time.end < checkpoint.time - 0.5 * scene.time.dt:
         raise InputError(f"--end-time {scene.time.end:g} is before the checkpoint's time {checkpoint.time:g} s")
     return _run(scene, build_solver(scene, comm), checkpoint, progress)
