@@ -19,7 +19,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
-from dataclasses import MISSING, asdict, dataclass, field, fields, replace
+from dataclasses import MISSING, asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
@@ -28,159 +28,21 @@ from fempm.errors import InputError
 from fempm.formsfile import FORMS_DIR
 from fempm.grid import cell_counts, square_cell_size
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
+from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, fraction, key, non_negative,
+                          petsc_table, point, points, positive, positive_or_inf, square_count, text, times)
 
 __all__ = ["Body", "Domain", "Fluid", "Obstacle", "Output", "Scene", "Solver", "Time", "Walls",
            "load_scene", "parse_scene", "scene_from_text", "to_toml"]
-
-_REQUIRED = object()
-
-
-class _Bad(ValueError):
-    """A value's problem; the caller adds the key."""
-
-
-# -- value checks: each converts a TOML value or raises _Bad saying what is allowed ----------------
-def _number(value) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise _Bad(f"must be a number, got {type(value).__name__} {value!r}")
-    return float(value)
-
-
-def positive(value) -> float:
-    """A finite number > 0."""
-    x = _number(value)
-    if not (math.isfinite(x) and x > 0):
-        raise _Bad(f"must be a number > 0, got {value!r}")
-    return x
-
-
-def positive_or_inf(value) -> float:
-    """A number > 0, or ``inf``."""
-    x = _number(value)
-    if not x > 0:
-        raise _Bad(f"must be a number > 0 (inf allowed), got {value!r}")
-    return x
-
-
-def non_negative(value) -> float:
-    """A finite number >= 0."""
-    x = _number(value)
-    if not (math.isfinite(x) and x >= 0):
-        raise _Bad(f"must be a number >= 0, got {value!r}")
-    return x
-
-
-def fraction(value) -> float:
-    """A number in [0, 1]."""
-    x = _number(value)
-    if not 0 <= x <= 1:
-        raise _Bad(f"must be a number in [0, 1], got {value!r}")
-    return x
-
-
-def boolean(value) -> bool:
-    """``true`` or ``false``."""
-    if not isinstance(value, bool):
-        raise _Bad(f"must be true or false, got {value!r}")
-    return value
-
-
-def text(value) -> str:
-    """A non-empty string."""
-    if not isinstance(value, str) or not value:
-        raise _Bad(f"must be a non-empty string, got {value!r}")
-    return value
-
-
-def choice(*allowed: str):
-    """One of the given strings."""
-    def check(value) -> str:
-        """One of the allowed strings."""
-        if value not in allowed:
-            raise _Bad(f"must be one of {', '.join(repr(a) for a in allowed)}, got {value!r}")
-        return value
-    check.__doc__ = f"One of {', '.join(repr(a) for a in allowed)}."
-    return check
-
-
-def point(value) -> tuple[float, float]:
-    """A pair of finite numbers ``[x, y]``."""
-    if not isinstance(value, list) or len(value) != 2:
-        raise _Bad(f"must be a pair of numbers [x, y], got {value!r}")
-    x = tuple(_number(v) for v in value)
-    if not all(math.isfinite(v) for v in x):
-        raise _Bad(f"must be a pair of finite numbers, got {value!r}")
-    return x
-
-
-def points(value) -> tuple[tuple[float, float], ...]:
-    """A list of at least three points ``[[x, y], ...]``."""
-    if not isinstance(value, list) or len(value) < 3:
-        raise _Bad(f"must be a list of at least three points [[x, y], ...], got {value!r}")
-    return tuple(point(v) for v in value)
-
-
-def cell_count_pair(value) -> tuple[int, int]:
-    """A pair of whole numbers >= 1 ``[nx, ny]``."""
-    if (not isinstance(value, list) or len(value) != 2
-            or not all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value)):
-        raise _Bad(f"must be a pair of whole numbers >= 1 [nx, ny], got {value!r}")
-    return tuple(value)
-
-
-def cell_list(value) -> tuple[tuple[int, int], ...]:
-    """A non-empty list of cells ``[[column, row], ...]`` (whole numbers from 0)."""
-    if (not isinstance(value, list) or not value
-            or not all(isinstance(c, list) and len(c) == 2
-                       and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in c)
-                       for c in value)):
-        raise _Bad(f"must be a non-empty list of cells [[column, row], ...] (whole numbers >= 0), got {value!r}")
-    return tuple(tuple(c) for c in value)
-
-
-def square_count(value) -> int:
-    """A perfect square >= 1 (1, 4, 9, ...): particles per cell on an n x n lattice."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1 or math.isqrt(value) ** 2 != value:
-        raise _Bad(f"must be a square number 1, 4, 9, 16, ... (n x n particles per cell), got {value!r}")
-    return value
-
-
-def times(value) -> tuple[float, ...]:
-    """A list of times >= 0."""
-    if not isinstance(value, list):
-        raise _Bad(f"must be a list of times in seconds, got {value!r}")
-    return tuple(non_negative(v) for v in value)
-
-
-def petsc_table(value) -> dict[str, str]:
-    """A table of PETSc option names (without ``-`` and prefix) to strings, numbers or booleans."""
-    if not isinstance(value, dict):
-        raise _Bad(f"must be a table of PETSc options, e.g. {{ ksp_rtol = 1e-8 }}, got {value!r}")
-    out = {}
-    for name, v in value.items():
-        if isinstance(v, dict | list):
-            raise _Bad(f"option {name!r} must have a string, number or boolean value, got {v!r}")
-        out[name.lstrip("-")] = str(v).lower() if isinstance(v, bool) else str(v)
-    return out
-
-
-def _key(check, default=_REQUIRED, unit: str = ""):
-    """A scene key: its check, its default (none: required) and its unit (for messages)."""
-    metadata = {"check": check, "required": default is _REQUIRED, "unit": unit}
-    if isinstance(default, dict):
-        return field(default_factory=dict, metadata=metadata)
-    return field(default=None if default is _REQUIRED else default, metadata=metadata)
-
 
 # -- the sections ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Domain:
     """The tank: a rectangle cut into square cells, given by ``cells`` or by ``cell_size``."""
 
-    lower: tuple[float, float] = _key(point, unit="m")
-    upper: tuple[float, float] = _key(point, unit="m")
-    cells: tuple[int, int] | None = _key(cell_count_pair, None)
-    cell_size: float | None = _key(positive, None, unit="m")
+    lower: tuple[float, float] = key(point, unit="m")
+    upper: tuple[float, float] = key(point, unit="m")
+    cells: tuple[int, int] | None = key(cell_count_pair, None)
+    cell_size: float | None = key(positive, None, unit="m")
 
     @property
     def h(self) -> float:
@@ -197,9 +59,9 @@ class Domain:
 class Fluid:
     """The fluid's properties (SI units)."""
 
-    density: float = _key(positive, 1000.0, unit="kg/m^3")
-    viscosity: float = _key(non_negative, 1.0e-3, unit="Pa s")
-    bulk_modulus: float = _key(positive_or_inf, 2.2e9, unit="Pa")
+    density: float = key(positive, 1000.0, unit="kg/m^3")
+    viscosity: float = key(non_negative, 1.0e-3, unit="Pa s")
+    bulk_modulus: float = key(positive_or_inf, 2.2e9, unit="Pa")
 
 
 class _Shaped:
@@ -214,23 +76,23 @@ class _Shaped:
 class Body(_Shaped):
     """A region filled with fluid at the start: a rectangle or a polygon."""
 
-    shape: str = _key(choice("rectangle", "polygon"))
-    lower: tuple[float, float] | None = _key(point, None, unit="m")
-    upper: tuple[float, float] | None = _key(point, None, unit="m")
-    vertices: tuple[tuple[float, float], ...] | None = _key(points, None, unit="m")
-    particles_per_cell: int = _key(square_count, 4)
-    velocity: tuple[float, float] = _key(point, (0.0, 0.0), unit="m/s")
+    shape: str = key(choice("rectangle", "polygon"))
+    lower: tuple[float, float] | None = key(point, None, unit="m")
+    upper: tuple[float, float] | None = key(point, None, unit="m")
+    vertices: tuple[tuple[float, float], ...] | None = key(points, None, unit="m")
+    particles_per_cell: int = key(square_count, 4)
+    velocity: tuple[float, float] = key(point, (0.0, 0.0), unit="m/s")
 
 
 @dataclass(frozen=True)
 class Obstacle(_Shaped):
     """A rigid obstacle: the cells whose centres lie in a rectangle or polygon, or listed cells."""
 
-    shape: str = _key(choice("rectangle", "polygon", "cells"))
-    lower: tuple[float, float] | None = _key(point, None, unit="m")
-    upper: tuple[float, float] | None = _key(point, None, unit="m")
-    vertices: tuple[tuple[float, float], ...] | None = _key(points, None, unit="m")
-    cells: tuple[tuple[int, int], ...] | None = _key(cell_list, None)
+    shape: str = key(choice("rectangle", "polygon", "cells"))
+    lower: tuple[float, float] | None = key(point, None, unit="m")
+    upper: tuple[float, float] | None = key(point, None, unit="m")
+    vertices: tuple[tuple[float, float], ...] | None = key(points, None, unit="m")
+    cells: tuple[tuple[int, int], ...] | None = key(cell_list, None)
 
     def blocked_cells(self, domain: Domain) -> np.ndarray:
         """Structured indices of the cells this obstacle blocks."""
@@ -249,18 +111,18 @@ _WALL = choice("slip", "no-slip")
 class Walls:
     """The condition on each side of the tank: ``slip`` (zero normal velocity) or ``no-slip``."""
 
-    left: str = _key(_WALL, "slip")
-    right: str = _key(_WALL, "slip")
-    bottom: str = _key(_WALL, "slip")
-    top: str = _key(_WALL, "slip")
+    left: str = key(_WALL, "slip")
+    right: str = key(_WALL, "slip")
+    bottom: str = key(_WALL, "slip")
+    top: str = key(_WALL, "slip")
 
 
 @dataclass(frozen=True)
 class Time:
     """The simulated span and the time step."""
 
-    end: float = _key(positive, unit="s")
-    dt: float = _key(positive, unit="s")
+    end: float = key(positive, unit="s")
+    dt: float = key(positive, unit="s")
 
     @property
     def steps(self) -> int:
@@ -272,29 +134,29 @@ class Time:
 class Solver:
     """Discretisation and solver options (see ``fempm.implicit.ImplicitOptions``)."""
 
-    basis: str = _key(choice("bspline", "q1"), "bspline")
-    linear: str = _key(choice("direct", "iterative"), "direct")
-    pspg: bool = _key(boolean, True)
-    volume_correction: float = _key(fraction, 0.1)
-    pic_blend: float = _key(fraction, 0.0)
-    newmark_beta: float = _key(positive, 0.25)
-    newmark_gamma: float = _key(positive, 0.5)
-    forms: str = _key(text, "incompressible")
-    petsc: dict = _key(petsc_table, {})
+    basis: str = key(choice("bspline", "q1"), "bspline")
+    linear: str = key(choice("direct", "iterative"), "direct")
+    pspg: bool = key(boolean, True)
+    volume_correction: float = key(fraction, 0.1)
+    pic_blend: float = key(fraction, 0.0)
+    newmark_beta: float = key(positive, 0.25)
+    newmark_gamma: float = key(positive, 0.5)
+    forms: str = key(text, "incompressible")
+    petsc: dict = key(petsc_table, {})
 
 
 @dataclass(frozen=True)
 class Output:
     """What a run writes, and how often (intervals in simulated seconds; absent: not written)."""
 
-    folder: str = _key(text)
-    progress: bool = _key(boolean, True)
-    particles_interval: float | None = _key(positive, None, unit="s")
-    grid_interval: float | None = _key(positive, None, unit="s")
-    snapshots: tuple[float, ...] = _key(times, (), unit="s")
-    final_snapshot: bool = _key(boolean, False)
-    pressure_scale: tuple[float, float] | None = _key(point, None, unit="Pa")
-    checkpoint_interval: float | None = _key(positive, None, unit="s")
+    folder: str = key(text)
+    progress: bool = key(boolean, True)
+    particles_interval: float | None = key(positive, None, unit="s")
+    grid_interval: float | None = key(positive, None, unit="s")
+    snapshots: tuple[float, ...] = key(times, (), unit="s")
+    final_snapshot: bool = key(boolean, False)
+    pressure_scale: tuple[float, float] | None = key(point, None, unit="Pa")
+    checkpoint_interval: float | None = key(positive, None, unit="s")
 
 
 @dataclass(frozen=True)
@@ -418,7 +280,7 @@ def _value(check, value, where: str, unit: str = ""):
         return None
     try:
         return check(value)
-    except _Bad as e:
+    except BadValue as e:
         raise InputError(f"{where}: {e}{f' ({unit})' if unit else ''}") from None
 
 
