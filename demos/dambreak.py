@@ -14,16 +14,20 @@ Weak form, per step, unknowns the grid displacement increment du and pressure p
 (Newmark, PSPG, volume correction): ``forms/incompressible.py`` -- edit it, or pass a
 copy with ``--forms``, to change the physics.
 
-The run writes to ``--out`` (default ``results/dambreak``):
+The set-up is the scene ``scenes/dambreak.toml`` (``fempm run scenes/dambreak.toml`` runs
+it too); the flags below change it. The run writes to ``--out`` (default
+``results/dambreak``):
 
-* ``front.csv`` and ``front.png``: surge front Z = x/L against T = t sqrt(2g/L), with the
-  Koshizuka-Oka experiment and Martin-Moyce's data (the seed's Fig. 2a);
+* ``front.csv`` (t, x_front) and ``front.png``: surge front Z = x/L against
+  T = t sqrt(2g/L), with the Koshizuka-Oka experiment and Martin-Moyce's data (the
+  seed's Fig. 2a);
 * ``snapshot_t0.200.png``, ``snapshot_t0.600.png``, ``snapshot_final.png``: particles
   coloured by pressure (Figs. 2b, 3);
-* ``particles.pvd`` (+ ``particles_*.vtp``) and ``grid.bp``: particles and grid fields
-  for ParaView, every ``--output-interval`` seconds;
+* ``particles.pvd`` (+ ``particles_*.vtp``) and ``grid.pvd`` (+ ``grid_*.vti``):
+  particles and grid fields for ParaView, every ``--output-interval`` seconds;
 * ``volume.csv``: cells occupied by water and the mean depth they make (Fig. 4);
-* ``summary.json``: front error, steps, wall time by phase, pressure range, max |div v|.
+* ``summary.json``: front error, steps, wall time by phase, pressure range, max |div v|;
+* ``checkpoint.npz``: for ``fempm run --resume results/dambreak``.
 
 Run (``mpirun -n 2`` works the same)::
 
@@ -35,21 +39,20 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tomllib
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
-from petsc4py import PETSc
 
-import fempm
-from fempm import diagnostics, output, recording
+import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
+from fempm import diagnostics, output, simulation
 from fempm.errors import FempmError
-from fempm.implicit import ImplicitOptions, ImplicitSolver
-from fempm.recording import Recorder, RecorderOptions
+from fempm.implicit import ImplicitOptions
+from fempm.scene import Scene, parse_scene
 
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference" / "dambreak"
-TANK, WIDTH, HEIGHT = 0.584, 0.146, 0.292
-GRAVITY = 9.81
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
 
 
 def load_reference(name: str) -> np.ndarray:
@@ -78,12 +81,9 @@ def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
     parser.add_argument("--no-files", action="store_true", help="write only the tables and summary")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     args, rest = parser.parse_known_args(argv)
-    bad = [a for a in rest if not a.startswith("-fempm_")]
+    bad = [a for k, a in enumerate(rest) if not a.startswith("-fempm_") and not (k and rest[k - 1].startswith("-fempm_"))]
     if bad:
         parser.error(f"unrecognised arguments: {' '.join(bad)} (PETSc options take the prefix -fempm_)")
-    for name in ("end_time", "dt", "output_interval"):
-        if not getattr(args, name) > 0:
-            parser.error(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
     if args.cells < 4 or args.cells % 4:
         parser.error(f"--cells must be a positive multiple of 4 (the column is a quarter of the tank), got {args.cells}")
     if args.ppc < 1:
@@ -91,54 +91,62 @@ def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
     return args, rest
 
 
-# %% set-up: grid, basis, particles, solver
-def build(args, comm=MPI.COMM_WORLD) -> ImplicitSolver:
-    """The tank, the water column and the implicit solver of the given flags."""
-    grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (TANK, TANK), (args.cells, args.cells))
-    basis = fempm.BSpline2(grid) if args.basis == "bspline" else fempm.Q1(grid)
-    water = fempm.Particles(grid)
-    water.seed(fempm.Rectangle((0.0, 0.0), (WIDTH, HEIGHT)), per_cell=args.ppc, density=1000.0)
-    options = ImplicitOptions(
-        dt=args.dt, viscosity=args.viscosity, gravity=(0.0, -GRAVITY),
-        alpha=0.0 if args.no_volume_correction else args.alpha, pspg=not args.no_pspg,
-        pic_blend=args.pic, walls=args.walls, forms=args.forms,
-    )
-    return ImplicitSolver(basis, water, options)
+# %% set-up: the shipped scene, changed by the flags
+def scene_of(args, petsc_args=()) -> Scene:
+    """``scenes/dambreak.toml`` with the flags applied (checked as any scene is)."""
+    data = tomllib.loads(SCENE.read_text())
+    data["time"].update(end=args.end_time, dt=args.dt)
+    data["domain"]["cells"] = [args.cells, args.cells]
+    data["bodies"][0]["particles_per_cell"] = args.ppc**2
+    data["fluid"]["viscosity"] = args.viscosity
+    data["walls"] = dict.fromkeys(data["walls"], args.walls)
+    forms = str(Path(args.forms).resolve()) if args.forms.endswith(".py") else args.forms
+    data["solver"].update(basis=args.basis, pspg=not args.no_pspg, pic_blend=args.pic, forms=forms,
+                          volume_correction=0.0 if args.no_volume_correction else args.alpha,
+                          petsc=_petsc_table(petsc_args))
+    data["output"].update(folder=str(args.out), progress=not args.quiet)
+    if args.no_files:
+        for key in ("particles_interval", "grid_interval", "snapshots", "final_snapshot"):
+            data["output"].pop(key, None)
+    else:
+        data["output"].update(particles_interval=args.output_interval, grid_interval=args.output_interval)
+    return parse_scene(data, source=SCENE)
+
+
+def _petsc_table(petsc_args) -> dict:
+    """``-fempm_name [value] ...`` as a table of options (a flag alone has the value "")."""
+    table, args = {}, list(petsc_args)
+    for k, arg in enumerate(args):
+        if arg.startswith("-fempm_"):
+            value = args[k + 1] if k + 1 < len(args) and not args[k + 1].startswith("-fempm_") else ""
+            table[arg[len("-fempm_"):]] = value
+    return table
 
 
 # %% the run: step, record, write
 def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
     """Run the dam break of ``args``; returns the summary (also written to summary.json)."""
-    PETSc.Options().insertString(" ".join(petsc_args))
-    solver = build(args, comm)
-    recorder = Recorder(solver, RecorderOptions(
-        folder=args.out, output_interval=args.output_interval, snapshot_times=(0.2, 0.6),
-        files=not args.no_files, pressure_scale=(0.0, 1000.0 * GRAVITY * HEIGHT),
-        extra={"cells": args.cells, "particles_per_cell": args.ppc**2, "dt": args.dt,
-               "pspg": not args.no_pspg, "alpha": solver.options.alpha},
-    ))
-    summary = recording.run(solver, args.end_time, recorder, progress=not args.quiet)
-    compare_front(recorder, summary, comm)
+    scene = scene_of(args, petsc_args)
+    summary = simulation.run_scene(scene, comm, overwrite=True, progress=not args.quiet)
+    compare_front(scene, summary, comm)
     return summary
 
 
 # %% compare the front with the experiment, write it and plot it
-def compare_front(recorder, summary, comm):
-    """Front error against Koshizuka-Oka (T <= 3); front.csv, front.png; completes summary.json."""
-    front = np.array(recorder.front)
-    T = front[:, 0] * np.sqrt(2 * GRAVITY / WIDTH)
-    Z = front[:, 1] / WIDTH
-    experiment = load_reference("koshizuka_oka_1996_experiment.csv")
-    error = diagnostics.front_error(T, Z, experiment) if T[-1] >= 3.0 else None  # the measure is over T <= 3
-    summary["front_rms_error_vs_koshizuka_oka"] = error
+def compare_front(scene: Scene, summary: dict, comm):
+    """Front error against Koshizuka-Oka (T <= 3); front.png; completes summary.json."""
+    error = None
     if comm.rank == 0:
-        out = recorder.folder
-        output.write_csv(out / "front.csv", ["t", "front_m", "T", "Z"],
-                         [(t, x, Ti, Zi) for (t, x), Ti, Zi in zip(front, T, Z)],
-                         comment="surge front: largest particle x plus half a particle spacing; "
-                                 "T = t sqrt(2g/L), Z = x/L, L = 0.146 m")
-        output.write_json(out / "summary.json", summary)
-        plot_front(out / "front.png", T, Z, error, summary)
+        folder, width, g = Path(scene.output.folder), scene.bodies[0].upper[0], -scene.gravity[1]
+        front = np.loadtxt(folder / "front.csv", delimiter=",", skiprows=2, ndmin=2)
+        T = front[:, 0] * np.sqrt(2 * g / width)
+        Z = front[:, 1] / width
+        experiment = load_reference("koshizuka_oka_1996_experiment.csv")
+        error = diagnostics.front_error(T, Z, experiment) if T[-1] >= 3.0 else None  # measured over T <= 3
+        summary["front_rms_error_vs_koshizuka_oka"] = error
+        output.write_json(folder / "summary.json", summary)
+        plot_front(folder / "front.png", T, Z, error, summary)
+    summary["front_rms_error_vs_koshizuka_oka"] = comm.bcast(error, root=0)
 
 
 def plot_front(path, T, Z, error, summary):

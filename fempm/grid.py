@@ -16,7 +16,7 @@ import dolfinx.mesh
 
 from fempm.errors import InputError, ParticleOutsideGridError
 
-__all__ = ["Grid"]
+__all__ = ["Grid", "cell_counts", "square_cell_size"]
 
 # Points within this fraction of a cell outside the grid (round-off of a
 # position on a wall) are taken to lie on the wall.
@@ -30,6 +30,43 @@ def _whole_cells(length: float, h: float, name: str) -> int:
             f"grid: the {name} ({length:g}) is not a whole number of cells of size h = {h:g}"
         )
     return int(n)
+
+
+def _box(lower, upper) -> tuple[np.ndarray, np.ndarray]:
+    lower, upper = np.asarray(lower, dtype=np.float64), np.asarray(upper, dtype=np.float64)
+    if lower.shape != (2,) or upper.shape != (2,):
+        raise InputError("grid: lower and upper must be pairs (x, y)")
+    if np.any(upper <= lower):
+        raise InputError(f"grid: upper {upper.tolist()} must exceed lower {lower.tolist()}")
+    return lower, upper
+
+
+def cell_counts(lower, upper, h: float) -> tuple[int, int]:
+    """Cells per direction of square cells of size ``h`` over ``[lower, upper]``.
+
+    Raises:
+        InputError: ``h`` is not positive, ``upper`` does not exceed ``lower``, or a side
+            is not a whole number of cells.
+    """
+    lower, upper = _box(lower, upper)
+    if not (np.isfinite(h) and h > 0):
+        raise InputError(f"grid: the cell size h must be positive, got {h}")
+    return _whole_cells(upper[0] - lower[0], h, "width"), _whole_cells(upper[1] - lower[1], h, "height")
+
+
+def square_cell_size(lower, upper, cells) -> float:
+    """The size of the cells when ``cells = (nx, ny)`` cut ``[lower, upper]``; they must be square."""
+    lower, upper = _box(lower, upper)
+    nx, ny = (int(n) for n in cells)
+    if nx < 1 or ny < 1:
+        raise InputError(f"grid: the number of cells must be positive, got {cells}")
+    hx, hy = (upper[0] - lower[0]) / nx, (upper[1] - lower[1]) / ny
+    if abs(hx - hy) > 1e-9 * max(hx, hy):
+        raise InputError(
+            f"grid: cells must be square, but {nx} x {ny} cells over "
+            f"{upper[0] - lower[0]:g} x {upper[1] - lower[1]:g} give hx = {hx:g}, hy = {hy:g}"
+        )
+    return hx
 
 
 class Grid:
@@ -49,32 +86,27 @@ class Grid:
             rank, or -1 where this rank does not own the cell.
         owned_cells: structured indices of the cells this rank owns, in DOLFINx's
             local order.
+        blocked: ``blocked[cell]`` is True for the cells of rigid obstacles (see
+            :meth:`block`); no material may enter them.
     """
 
     def __init__(self, comm: MPI.Comm, lower, upper, h: float):
-        lower = np.asarray(lower, dtype=np.float64)
-        upper = np.asarray(upper, dtype=np.float64)
-        if lower.shape != (2,) or upper.shape != (2,):
-            raise InputError("grid: lower and upper must be pairs (x, y)")
-        if not (np.isfinite(h) and h > 0):
-            raise InputError(f"grid: the cell size h must be positive, got {h}")
-        if np.any(upper <= lower):
-            raise InputError(f"grid: upper {upper.tolist()} must exceed lower {lower.tolist()}")
+        self.nx, self.ny = cell_counts(lower, upper, h)
         self.comm = comm
-        self.lower, self.upper, self.h = lower, upper, float(h)
-        self.nx = _whole_cells(upper[0] - lower[0], h, "width")
-        self.ny = _whole_cells(upper[1] - lower[1], h, "height")
+        self.lower = np.asarray(lower, dtype=np.float64)
+        self.upper = np.asarray(upper, dtype=np.float64)
+        self.h = float(h)
         self.num_cells = self.nx * self.ny
         self.mesh = dolfinx.mesh.create_rectangle(
             comm,
-            [lower, upper],
+            [self.lower, self.upper],
             [self.nx, self.ny],
             dolfinx.mesh.CellType.quadrilateral,
             ghost_mode=dolfinx.mesh.GhostMode.none,
         )
         n_owned = self.mesh.topology.index_map(2).size_local
         mid = dolfinx.mesh.compute_midpoints(self.mesh, 2, np.arange(n_owned, dtype=np.int32))
-        ij = np.floor((mid[:, :2] - lower) / self.h).astype(np.int64)
+        ij = np.floor((mid[:, :2] - self.lower) / self.h).astype(np.int64)
         self.owned_cells = ij[:, 0] + self.nx * ij[:, 1]
         self.local_cell = np.full(self.num_cells, -1, dtype=np.int32)
         self.local_cell[self.owned_cells] = np.arange(n_owned, dtype=np.int32)
@@ -82,22 +114,24 @@ class Grid:
         self.owner = np.empty(self.num_cells, dtype=np.int32)
         for rank, cells in enumerate(owned_by_rank):
             self.owner[cells] = rank
+        self.blocked = np.zeros(self.num_cells, dtype=bool)
 
     @classmethod
     def from_cells(cls, comm: MPI.Comm, lower, upper, cells) -> "Grid":
         """A grid given by its number of cells per direction; the cells must be square."""
-        lower = np.asarray(lower, dtype=np.float64)
-        upper = np.asarray(upper, dtype=np.float64)
-        nx, ny = (int(n) for n in cells)
-        if nx < 1 or ny < 1:
-            raise InputError(f"grid: the number of cells must be positive, got {cells}")
-        hx, hy = (upper[0] - lower[0]) / nx, (upper[1] - lower[1]) / ny
-        if abs(hx - hy) > 1e-9 * max(hx, hy):
-            raise InputError(
-                f"grid: cells must be square, but {nx} x {ny} cells over "
-                f"{upper[0] - lower[0]:g} x {upper[1] - lower[1]:g} give hx = {hx:g}, hy = {hy:g}"
-            )
-        return cls(comm, lower, upper, hx)
+        return cls(comm, lower, upper, square_cell_size(lower, upper, cells))
+
+    def block(self, cells):
+        """Mark the given structured cells as rigid obstacle (in addition to earlier ones).
+
+        Solvers hold the velocity at zero on every basis function that is non-zero in
+        a blocked cell, and particles that enter one are treated as having left the
+        grid (:meth:`fempm.Particles.relocate`).
+        """
+        cells = np.asarray(cells, dtype=np.int64).ravel()
+        if np.any((cells < 0) | (cells >= self.num_cells)):
+            raise InputError(f"grid: blocked cells must be in [0, {self.num_cells}), got {cells.min()}..{cells.max()}")
+        self.blocked[cells] = True
 
     def cell_index(self, i, j):
         """Structured cell number of column ``i`` and row ``j``."""

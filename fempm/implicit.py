@@ -39,6 +39,7 @@ from fempm.space import GridFunction, Space
 __all__ = ["ImplicitOptions", "ImplicitSolver", "SimulationDiverged"]
 
 WALLS = ("slip", "no-slip")
+SIDES = ("left", "right", "bottom", "top")
 
 
 class SimulationDiverged(FempmError):
@@ -64,7 +65,10 @@ class ImplicitOptions:
             0.1: with pure FLIP a Q1 column at rest grew a velocity mode by ~7 % per step
             (0.8 m/s after 1 s); with 5 % PIC the B-spline column kept 1.2e-3 m/s of
             surface motion after 1 s, with 10 % 8e-4 m/s.
-        walls: ``"slip"`` (zero normal velocity) or ``"no-slip"`` on the four walls.
+        walls: ``"slip"`` (zero normal velocity) or ``"no-slip"`` on the four walls, or a
+            mapping of side (``left``, ``right``, ``bottom``, ``top``) to one of them
+            (sides not named are slip). Cells blocked by obstacles (``Grid.block``) are
+            no-slip: every function non-zero in one has its velocity held at zero.
         newton_rtol, newton_max_it: Newton stops when ||R|| <= rtol ||R_0||.
         min_support_fraction: basis functions whose support holds less material than this
             fraction of ``rho * int N_i dx`` are left out of the solve (their dofs held at
@@ -88,7 +92,7 @@ class ImplicitOptions:
     alpha: float = 0.1
     pspg: bool = True
     pic_blend: float = 0.1
-    walls: str = "slip"
+    walls: str | dict = "slip"
     newton_rtol: float = 1e-8
     newton_max_it: int = 8
     pressure_limit: float | None = None
@@ -107,10 +111,19 @@ class ImplicitOptions:
             raise InputError(f"pic_blend must be in [0, 1], got {self.pic_blend}")
         if self.viscosity < 0:
             raise InputError(f"viscosity must be >= 0, got {self.viscosity}")
-        if self.walls not in WALLS:
-            raise InputError(f"walls must be one of {WALLS}, got {self.walls!r}")
+        for side, kind in self.wall_conditions().items():
+            if side not in SIDES:
+                raise InputError(f"walls: unknown side {side!r}; the sides are {SIDES}")
+            if kind not in WALLS:
+                raise InputError(f"walls.{side} must be one of {WALLS}, got {kind!r}")
         if not (0 < self.beta <= 0.5 and 0 < self.gamma <= 1):
             raise InputError(f"Newmark needs 0 < beta <= 1/2 and 0 < gamma <= 1, got {self.beta}, {self.gamma}")
+
+    def wall_conditions(self) -> dict[str, str]:
+        """The condition on each side, ``{"left": "slip", ...}``."""
+        if isinstance(self.walls, str):
+            return dict.fromkeys(SIDES, self.walls)
+        return {**dict.fromkeys(SIDES, "slip"), **self.walls}
 
 
 class ImplicitSolver:
@@ -161,7 +174,7 @@ class ImplicitSolver:
         expanded = ufl.algorithms.expand_derivatives(self.jacobian_form.ufl_form)
         self.linear = unknown not in expanded.coefficients()  # R affine in U: one Newton step
         self.J = self.space.create_matrix()
-        self.linear_solver = LinearSolver(self.comm, "fempm_", options.petsc_options)
+        self.linear_solver = LinearSolver(self.comm, "fempm_", options.petsc_options, fields=self.space.fields)
         self.time = 0.0
         self.steps = 0
         self.newton_iterations = 0
@@ -323,11 +336,13 @@ class ImplicitSolver:
 
     # -- helpers -----------------------------------------------------------------------
     def _walls(self) -> np.ndarray:
-        """Global numbers of the owned velocity dofs held at zero on the walls."""
-        if self.options.walls == "no-slip":
-            dofs = [self.space.wall_dofs("u", c) for c in range(2)]
-        else:
-            dofs = [self.space.wall_dofs("u", 0, "lr"), self.space.wall_dofs("u", 1, "bt")]
+        """Global numbers of the owned velocity dofs held at zero: on the walls (normal
+        component, or both) and on obstacles."""
+        dofs = [self.space.cell_dofs("u", np.flatnonzero(self.grid.blocked))]
+        for side, kind in self.options.wall_conditions().items():
+            normal = 0 if side in ("left", "right") else 1
+            for component in (0, 1) if kind == "no-slip" else (normal,):
+                dofs.append(self.space.wall_dofs("u", component, side[0]))
         return np.unique(np.concatenate(dofs))
 
 

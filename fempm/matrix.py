@@ -28,6 +28,8 @@ from fempm.space import Space
 
 __all__ = ["GridMatrix", "MatrixLayout", "grid_matrix", "layout"]
 
+_CHUNK = 1 << 15  # functions per chunk while building the column indices
+
 _petsc = ctypes.CDLL(str(dolfinx.fem.petsc.get_petsc_lib()))
 _petsc.MatUpdateMPIAIJWithArray.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
 _petsc.MatUpdateMPIAIJWithArray.restype = ctypes.c_int
@@ -64,13 +66,17 @@ class MatrixLayout:
         self.stencil = np.where(valid, rank_in_row, -1).astype(np.int32)
         count = valid.sum(axis=1)
         sorted_neighbours = np.take_along_axis(neighbour, order, axis=1)
-        flat = sorted_neighbours[np.arange(width * width)[None, :] < count[:, None]]
-        per_function = (bs * flat[:, None] + np.arange(bs)).ravel()  # column list of each f
-        block_start = np.concatenate([[0], np.cumsum(count * bs)])[:-1]
-        row_len = np.repeat(count * bs, bs)
-        self.indptr = np.concatenate([[0], np.cumsum(row_len)]).astype(PETSc.IntType)
-        shift = np.repeat(np.repeat(block_start, bs) - self.indptr[:-1], row_len)
-        self.columns = per_function[np.arange(self.indptr[-1]) + shift].astype(PETSc.IntType)
+        del neighbour, order, rank_in_row, valid, ni, nj
+        self.indptr = np.concatenate([[0], np.cumsum(np.repeat(count * bs, bs))]).astype(PETSc.IntType)
+        self.columns = np.empty(int(self.indptr[-1]), dtype=PETSc.IntType)
+        for start in range(0, len(f), _CHUNK):  # in chunks: whole-grid int64 temporaries took 3x the matrix
+            stop = min(start + _CHUNK, len(f))
+            keep = np.arange(width * width)[None, :] < count[start:stop, None]
+            # every row of a function holds its neighbours' dofs, neighbour-major, component-minor
+            columns = (bs * sorted_neighbours[start:stop, :, None] + np.arange(bs)).reshape(stop - start, -1)
+            keep = np.repeat(keep, bs, axis=1)
+            self.columns[self.indptr[bs * start]: self.indptr[bs * stop]] = np.repeat(columns, bs, axis=0)[
+                np.repeat(keep, bs, axis=0)]
         self.num_owned_rows = num.num_owned * bs
         self.num_owned_entries = int(self.indptr[self.num_owned_rows])
         self._plan_ghost_rows()

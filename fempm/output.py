@@ -1,9 +1,9 @@
 """Files a run writes: CSV and JSON tables, particle series for ParaView, grid fields, pictures.
 
 Every file is written to a temporary name beside its final one and renamed when
-complete, so a run stopped at any moment leaves no half-written file (the grid
-series is an ADIOS2/VTX stream, which records only whole steps). Only rank 0 writes
-tables and pictures; particles are gathered to it.
+complete, so a run stopped at any moment leaves no half-written file. Only rank 0 writes
+tables, pictures and series files, one file whatever the number of ranks; particles
+and grid samples are gathered to it.
 """
 
 from __future__ import annotations
@@ -98,12 +98,43 @@ def gather_particles(particles, fields=("velocity", "pressure")) -> dict[str, np
     return {n: a[order] for n, a in out.items()}
 
 
-class ParticleSeries:
-    """Particles as VTK PolyData files (``name_000000.vtp``) and a ParaView ``name.pvd`` index."""
+class _Series:
+    """Files written one at a time (``name_000000.ext``, ...) and a ParaView ``name.pvd`` index.
 
-    def __init__(self, folder: Path, name: str = "particles", fields=("velocity", "pressure")):
-        self.folder, self.name, self.fields = Path(folder), name, tuple(fields)
-        self.entries: list[tuple[float, str]] = []
+    Every file and every version of the index is written atomically, and the index
+    lists only files complete on disk. ``entries`` (time, file name) is the state a
+    restarted run passes back to continue the same series.
+    """
+
+    extension = ""
+
+    def __init__(self, folder: Path, name: str, entries=()):
+        self.folder, self.name = Path(folder), name
+        self.entries: list[tuple[float, str]] = [(float(t), str(f)) for t, f in entries]
+
+    def _next_file(self) -> str:
+        return f"{self.name}_{len(self.entries):06d}.{self.extension}"
+
+    def _add(self, t: float, filename: str):
+        self.entries.append((t, filename))
+        collection = "".join(
+            f'    <DataSet timestep="{time!r}" file="{file}"/>\n' for time, file in self.entries
+        )
+        with atomic_path(self.folder / f"{self.name}.pvd") as tmp:
+            tmp.write_text(
+                '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
+                f"{collection}  </Collection>\n</VTKFile>\n"
+            )
+
+
+class ParticleSeries(_Series):
+    """Particles as VTK PolyData files (``particles_000000.vtp``), gathered to rank 0."""
+
+    extension = "vtp"
+
+    def __init__(self, folder: Path, name: str = "particles", fields=("velocity", "pressure"), entries=()):
+        super().__init__(folder, name, entries)
+        self.fields = tuple(fields)
 
     def write(self, particles, t: float):
         """Write the particles at time ``t`` and update the index."""
@@ -117,18 +148,10 @@ class ParticleSeries:
         cloud.point_data["id"] = data["id"]
         for field in self.fields:
             cloud.point_data[field] = _three_d(data[field])
-        filename = f"{self.name}_{len(self.entries):06d}.vtp"
+        filename = self._next_file()
         with atomic_path(self.folder / filename) as tmp:
             cloud.save(tmp)
-        self.entries.append((t, filename))
-        collection = "".join(
-            f'    <DataSet timestep="{time:.9g}" file="{file}"/>\n' for time, file in self.entries
-        )
-        with atomic_path(self.folder / f"{self.name}.pvd") as tmp:
-            tmp.write_text(
-                '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
-                f"{collection}  </Collection>\n</VTKFile>\n"
-            )
+        self._add(t, filename)
 
 
 def _three_d(a: np.ndarray) -> np.ndarray:
@@ -138,38 +161,52 @@ def _three_d(a: np.ndarray) -> np.ndarray:
     return a
 
 
-class GridSeries:
-    """Grid fields (velocity, pressure) of a solver as a VTX (ADIOS2) stream, ``grid.bp``.
+class GridSeries(_Series):
+    """Grid fields (velocity, pressure) as VTK image files (``grid_000000.vti``), one per output.
 
-    The fields are written as Lagrange functions (Q1, or Q2 holding the B-spline
-    fields exactly through the extraction matrix), which ParaView reads.
+    The fields are sampled at the nodes of the Lagrange space containing the basis
+    (the grid vertices for Q1; vertices, edge midpoints and cell centres for the
+    B-spline, whose values there are exact), which ParaView draws bilinearly between
+    the nodes. Every rank samples the nodes of its own cells; rank 0 writes one file.
     """
 
-    def __init__(self, folder: Path, velocity_space, scalar_space):
-        import dolfinx.fem
-        import dolfinx.io
+    extension = "vti"
 
-        from fempm.lagrange import extraction_matrix, lagrange_space
-
-        self.velocity = dolfinx.fem.Function(lagrange_space(velocity_space), name="velocity")
-        self.pressure = dolfinx.fem.Function(lagrange_space(scalar_space), name="pressure")
-        self._P_velocity = extraction_matrix(velocity_space, self.velocity.function_space)
-        self._P_pressure = extraction_matrix(scalar_space, self.pressure.function_space)
-        mesh = velocity_space.grid.mesh
-        self.writer = dolfinx.io.VTXWriter(mesh.comm, str(Path(folder) / "grid.bp"),
-                                           [self.velocity, self.pressure], engine="BP4")
+    def __init__(self, folder: Path, basis, name: str = "grid", entries=()):
+        super().__init__(folder, name, entries)
+        grid, k = basis.grid, basis.degree
+        self.dimensions = (k * grid.nx + 1, k * grid.ny + 1, 1)
+        self.spacing = (grid.h / k, grid.h / k, 1.0)
+        self.origin = (*grid.lower, 0.0)
+        a, b = np.meshgrid(np.arange(self.dimensions[0]), np.arange(self.dimensions[1]), indexing="xy")
+        a, b = a.ravel(), b.ravel()
+        i, j = np.minimum(a // k, grid.nx - 1), np.minimum(b // k, grid.ny - 1)
+        cells = grid.cell_index(i, j)
+        mine = grid.owner[cells] == grid.comm.rank
+        self.nodes, self.cells = np.flatnonzero(mine), cells[mine]
+        self.xi = np.column_stack([a[mine] / k - i[mine], b[mine] / k - j[mine]])
+        self.comm = grid.comm
 
     def write(self, velocity, pressure, t: float):
         """Write grid functions ``velocity`` (2 components) and ``pressure`` at time ``t``."""
-        for P, source, target in ((self._P_velocity, velocity, self.velocity),
-                                  (self._P_pressure, pressure, self.pressure)):
-            P.mult(source.vector.petsc_vec, target.x.petsc_vec)
-            target.x.scatter_forward()
-        self.writer.write(t)
+        local = (self.nodes, velocity.evaluate(self.cells, self.xi)[:, 0, :],
+                 pressure.evaluate(self.cells, self.xi)[:, 0, 0])
+        parts = self.comm.gather(local, root=0)
+        if self.comm.rank != 0:
+            return
+        import pyvista as pv
 
-    def close(self):
-        """Close the stream."""
-        self.writer.close()
+        image = pv.ImageData(dimensions=self.dimensions, spacing=self.spacing, origin=self.origin)
+        nodes = np.concatenate([p[0] for p in parts])
+        for name, k in (("velocity", 1), ("pressure", 2)):
+            values = np.concatenate([p[k] for p in parts])
+            out = np.zeros((image.n_points, *values.shape[1:]))
+            out[nodes] = values
+            image.point_data[name] = _three_d(out)
+        filename = self._next_file()
+        with atomic_path(self.folder / filename) as tmp:
+            image.save(tmp)
+        self._add(t, filename)
 
 
 def snapshot(path: str | Path, particles, field: str = "pressure", title: str = "",
@@ -189,6 +226,8 @@ def snapshot(path: str | Path, particles, field: str = "pressure", title: str = 
     plotter = pv.Plotter(off_screen=True, window_size=(900, 800))
     plotter.set_background("white")
     plotter.add_mesh(box.outline(), color="black", line_width=2)
+    if grid.blocked.any():
+        plotter.add_mesh(_cells_as_quads(grid, np.flatnonzero(grid.blocked)), color="gray")
     plotter.add_mesh(cloud, scalars=field, point_size=point_size, render_points_as_spheres=True,
                      cmap="viridis", clim=clim,
                      scalar_bar_args={"title": f"{field} (Pa)" if field == "pressure" else field,
@@ -201,3 +240,13 @@ def snapshot(path: str | Path, particles, field: str = "pressure", title: str = 
     with atomic_path(path) as tmp:
         plotter.screenshot(str(tmp))
     plotter.close()
+
+
+def _cells_as_quads(grid, cells):
+    """The given structured cells as one pyvista surface of squares (obstacles in pictures)."""
+    import pyvista as pv
+
+    corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
+    points = (grid.cell_origin(cells)[:, None, :] + grid.h * corners[None]).reshape(-1, 2)
+    faces = np.column_stack([np.full(len(cells), 4), np.arange(4 * len(cells)).reshape(-1, 4)])
+    return pv.PolyData(np.column_stack([points, np.zeros(len(points))]), faces.ravel())

@@ -18,7 +18,7 @@ import numpy as np
 from fempm.errors import InputError, ParticleOutsideGridError
 from fempm.grid import Grid
 
-__all__ = ["Particles", "Polygon", "Rectangle"]
+__all__ = ["Particles", "Polygon", "Rectangle", "sub_cell_centres"]
 
 
 @dataclass(frozen=True)
@@ -71,6 +71,14 @@ class Polygon:
         """``(lower, upper)`` corners of the bounding box."""
         v = np.asarray(self.vertices, dtype=float)
         return v.min(axis=0), v.max(axis=0)
+
+
+def sub_cell_centres(origins: np.ndarray, h: float, per_cell: int) -> np.ndarray:
+    """Centres of the ``per_cell x per_cell`` sub-cells of square cells with the given lower-left
+    corners, cell by cell (x fastest): where :meth:`Particles.seed` puts particles."""
+    sub = (np.arange(per_cell) + 0.5) / per_cell
+    sub_xi = np.stack(np.meshgrid(sub, sub, indexing="xy"), -1).reshape(-1, 2)
+    return (np.asarray(origins)[:, None, :] + h * sub_xi[None]).reshape(-1, 2)
 
 
 _STANDARD = {"x": (2,), "volume": (), "mass": (), "velocity": (2,), "acceleration": (2,)}
@@ -171,10 +179,8 @@ class Particles:
             )
         n = int(per_cell)
         g = self.grid
-        sub = (np.arange(n) + 0.5) / n
-        sub_xi = np.stack(np.meshgrid(sub, sub, indexing="xy"), -1).reshape(-1, 2)
         cells = np.sort(g.owned_cells)
-        x = (g.cell_origin(cells)[:, None, :] + g.h * sub_xi[None]).reshape(-1, 2)
+        x = sub_cell_centres(g.cell_origin(cells), g.h, n)
         keep = body.contains(x)
         for earlier in self._bodies:
             keep &= ~earlier.contains(x)
@@ -220,9 +226,31 @@ class Particles:
         self.relocate()
         return comm.allreduce(n)
 
+    def replace(self, fields: dict[str, np.ndarray]):
+        """Replace all particles by the given ones (e.g. read from a checkpoint on rank 0).
+
+        Any rank may pass any particles (others pass empty arrays); they are sent to
+        their owners and sorted as :meth:`relocate` does. ``fields`` must hold exactly
+        the fields these particles have.
+        """
+        if set(fields) != set(self.fields):
+            raise InputError(f"particles: the replacement has fields {sorted(fields)}, "
+                             f"these particles have {sorted(self.fields)}")
+        self.fields = {name: np.asarray(fields[name], dtype=a.dtype).reshape(-1, *a.shape[1:])
+                       for name, a in self.fields.items()}
+        self.relocate()
+
     def _append(self, new: dict[str, np.ndarray]):
         for name in self.fields:
             self.fields[name] = np.concatenate([self.fields[name], new[name]])
+
+    def _remove(self, mask: np.ndarray):
+        """Delete the particles of ``mask``, adding them to the lost mass and count."""
+        self.lost_mass += float(self.fields["mass"][mask].sum())
+        self.lost_count += int(mask.sum())
+        keep = np.flatnonzero(~mask)
+        for name in self.fields:
+            self.fields[name] = self.fields[name][keep]
 
     def _take(self, index: np.ndarray):
         for name in self.fields:
@@ -250,23 +278,50 @@ class Particles:
     def relocate(self):
         """Locate every particle, send it to the rank owning its cell, sort by (cell, id).
 
-        Particles outside the grid raise :class:`ParticleOutsideGridError` or, with
-        ``on_exit="delete"``, are removed and counted in :attr:`lost_mass`.
+        Particles outside the grid, or in a cell blocked by an obstacle
+        (:meth:`fempm.Grid.block`), raise :class:`ParticleOutsideGridError` on every
+        rank or, with ``on_exit="delete"``, are removed and counted in :attr:`lost_mass`.
         """
         self.check()
-        outside = self.grid.outside(self.x)
-        if np.any(outside) and self.on_exit == "delete":
-            self.lost_mass += float(self.fields["mass"][outside].sum())
-            self.lost_count += int(outside.sum())
-            keep = np.flatnonzero(~outside)
-            for name in self.fields:
-                self.fields[name] = self.fields[name][keep]
+        gone = self._gone()
+        if self.on_exit == "delete":
+            self._remove(gone)
+        else:
+            self._raise_if_any(gone)
         self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
         self._migrate()
         self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
         order = np.lexsort((self.id, self.cell))
         self._take(order)
         self.cache.clear()
+
+    def _gone(self) -> np.ndarray:
+        """Mask of the particles outside the grid or inside an obstacle cell."""
+        gone = self.grid.outside(self.x)
+        if self.grid.blocked.any():
+            inside = np.flatnonzero(~gone)
+            cells, _ = self.grid.locate(self.x[inside])
+            gone[inside[self.grid.blocked[cells]]] = True
+        return gone
+
+    def _raise_if_any(self, gone: np.ndarray):
+        """Raise :class:`ParticleOutsideGridError` on all ranks if any rank has a particle gone."""
+        comm = self.grid.comm
+        if comm.allreduce(int(gone.sum())) == 0:
+            return
+        message = None
+        if np.any(gone):
+            k = np.flatnonzero(gone)
+            x = self.x[k[0]]
+            try:
+                cell = self.grid.locate(x[None], ids=self.id[k[:1]])[0][0]
+                message = (f"particle {self.id[k[0]]} at ({x[0]:.6g}, {x[1]:.6g}) entered the obstacle "
+                           f"cell (column {cell % self.grid.nx}, row {cell // self.grid.nx})")
+            except ParticleOutsideGridError as outside:
+                message = str(outside)
+        first = next(m for m in comm.allgather(message) if m is not None)
+        total = comm.allreduce(int(gone.sum()))
+        raise ParticleOutsideGridError(first + (f" ({total} particles in all)" if total > 1 else ""))
 
     def _migrate(self):
         comm = self.grid.comm

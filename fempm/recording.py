@@ -1,8 +1,11 @@
 """The time loop of a run and what it records: histories, ParaView series, pictures, summary.
 
-Works with any solver that has ``step()``, ``time``, ``steps``, ``particles``, ``grid``,
-``timings`` (wall time by phase), ``velocity`` and ``pressure`` (grid functions),
-``vector_space``, ``scalar_space`` and ``max_divergence``.
+Works with any solver that has ``step()``, ``time``, ``steps``, ``options.dt``,
+``particles``, ``grid``, ``basis``, ``timings`` (wall time by phase), ``velocity`` and
+``pressure`` (grid functions) and ``max_divergence``.
+
+Files are due by step count (an interval of ``k`` steps writes at steps 0, k, 2k, ...),
+so a run resumed from a checkpoint writes exactly what the uninterrupted run writes.
 """
 
 from __future__ import annotations
@@ -17,25 +20,35 @@ from fempm import diagnostics, output
 from fempm.implicit import SimulationDiverged
 from fempm.progress import Progress
 
-__all__ = ["Recorder", "RecorderOptions", "run"]
+__all__ = ["Recorder", "RecorderOptions", "run", "steps_between"]
+
+
+def steps_between(interval: float | None, dt: float) -> int | None:
+    """An interval of simulated time in whole steps (at least one); None stays None (never)."""
+    return None if interval is None else max(round(interval / dt), 1)
 
 
 @dataclass
 class RecorderOptions:
-    """What a run writes.
+    """What a run writes (intervals in simulated seconds; None: not written).
 
     Attributes:
         folder: output folder.
-        output_interval: seconds of simulated time between ParaView outputs.
-        snapshot_times: times of PNG pictures (a picture of the final state is added).
-        files: write ParaView series and pictures (False: only tables and summary).
+        particles_interval: particles as ``particles_*.vtp`` + ``particles.pvd``.
+        grid_interval: grid velocity and pressure as ``grid_*.vti`` + ``grid.pvd``.
+        snapshot_times: times of PNG pictures of the particles coloured by pressure.
+        final_snapshot: a picture of the last state.
         pressure_scale: colour range of the pictures, Pa.
+        extra: entries added to the summary.
+
+    ``front.csv``, ``volume.csv`` and ``summary.json`` are always written.
     """
 
     folder: Path = Path("results")
-    output_interval: float = 0.05
+    particles_interval: float | None = None
+    grid_interval: float | None = None
     snapshot_times: tuple[float, ...] = ()
-    files: bool = True
+    final_snapshot: bool = False
     pressure_scale: tuple[float, float] | None = None
     extra: dict = field(default_factory=dict)
 
@@ -45,93 +58,137 @@ class Recorder:
 
     def __init__(self, solver, options: RecorderOptions):
         self.solver, self.options = solver, options
-        comm = solver.grid.comm
-        self.folder = output.prepare_folder(options.folder, comm)
-        particles = solver.particles
-        self.initial_cells = diagnostics.occupied_cells(particles)
-        self.front = [(solver.time, diagnostics.front_position(particles))]
-        self.cells = [(solver.time, self.initial_cells, diagnostics.surface_height(particles))]
+        self.folder = output.prepare_folder(options.folder, solver.grid.comm)
+        dt = solver.options.dt
+        self.front: list[tuple[float, float]] = []
+        self.cells: list[tuple[float, int, float]] = []  # (t, occupied cells, surface height)
         self.pressure_min, self.pressure_max, self.max_divergence = np.inf, -np.inf, 0.0
-        self.particle_series = output.ParticleSeries(self.folder) if options.files else None
-        self.grid_series = (output.GridSeries(self.folder, solver.vector_space, solver.scalar_space)
-                            if options.files else None)
-        self._next_output = solver.time
-        self._pending_snapshots = sorted(t for t in options.snapshot_times if t >= solver.time)
+        self.particles_every = steps_between(options.particles_interval, dt)
+        self.grid_every = steps_between(options.grid_interval, dt)
+        self.particle_series = output.ParticleSeries(self.folder) if self.particles_every else None
+        self.grid_series = output.GridSeries(self.folder, solver.basis) if self.grid_every else None
+        self.snapshot_steps = {round(t / dt): t for t in options.snapshot_times}
 
     def record(self):
-        """Take the measures of the current state; write files when they are due."""
+        """Take the measures of the current state; write the files due at this step."""
         s, particles = self.solver, self.solver.particles
-        t = s.time
+        t, n = s.time, s.steps
         self.front.append((t, diagnostics.front_position(particles)))
         self.cells.append((t, diagnostics.occupied_cells(particles), diagnostics.surface_height(particles)))
         low, high = diagnostics.pressure_range(particles)
         self.pressure_min, self.pressure_max = min(self.pressure_min, low), max(self.pressure_max, high)
         self.max_divergence = max(self.max_divergence, s.max_divergence)
-        if not self.options.files:
-            return
-        half_step = 0.5 * getattr(s.options, "dt", 0.0)
-        if t >= self._next_output - half_step:
+        if self.particle_series and n % self.particles_every == 0:
             self.particle_series.write(particles, t)
+        if self.grid_series and n % self.grid_every == 0:
             self.grid_series.write(s.velocity, s.pressure, t)
-            self._next_output += self.options.output_interval
-        while self._pending_snapshots and t >= self._pending_snapshots[0] - half_step:
-            ts = self._pending_snapshots.pop(0)
+        if n in self.snapshot_steps:
+            ts = self.snapshot_steps[n]
             output.snapshot(self.folder / f"snapshot_t{ts:.3f}.png", particles, title=f"t = {ts:.3f} s",
                             clim=self.options.pressure_scale)
 
+    def write_histories(self):
+        """Write ``front.csv`` and ``volume.csv`` with the histories so far (rank 0)."""
+        grid = self.solver.grid
+        if grid.comm.rank != 0:
+            return
+        h, floor = grid.h, grid.upper[0] - grid.lower[0]
+        output.write_csv(self.folder / "front.csv", ["t", "front_m"], self.front,
+                         comment="surge front: largest particle x plus half a particle spacing")
+        output.write_csv(self.folder / "volume.csv",
+                         ["t", "occupied_cells", "occupied_area_m2", "mean_depth_m", "surface_height_m"],
+                         [(t, c, c * h * h, c * h * h / floor, z) for t, c, z in self.cells],
+                         comment="cells holding particles; mean depth = occupied area / floor width; "
+                                 "surface height = median over columns of the top particle's top")
+
+    def state(self) -> dict:
+        """Everything :meth:`restore` needs to continue these histories and series (JSON-able)."""
+        return {
+            "front": self.front, "cells": self.cells, "pressure_min": self.pressure_min,
+            "pressure_max": self.pressure_max, "max_divergence": self.max_divergence,
+            "particle_series": self.particle_series.entries if self.particle_series else [],
+            "grid_series": self.grid_series.entries if self.grid_series else [],
+        }
+
+    def restore(self, state: dict):
+        """Continue from a :meth:`state` (of a run of the same scene, read from a checkpoint)."""
+        self.front = [tuple(e) for e in state["front"]]
+        self.cells = [tuple(e) for e in state["cells"]]
+        self.pressure_min, self.pressure_max = state["pressure_min"], state["pressure_max"]
+        self.max_divergence = state["max_divergence"]
+        for series, key in ((self.particle_series, "particle_series"), (self.grid_series, "grid_series")):
+            if series:
+                series.entries = [(t, f) for t, f in state[key]]
+
     def close(self, status: str, cause: str | None, wall: float) -> dict:
-        """Write volume.csv, the final picture and summary.json; return the summary."""
+        """Write the histories, the final picture and summary.json; return the summary."""
         s = self.solver
-        comm, h = s.grid.comm, s.grid.h
-        floor = s.grid.upper[0] - s.grid.lower[0]
-        if self.grid_series:
-            self.grid_series.close()
+        h, floor = s.grid.h, s.grid.upper[0] - s.grid.lower[0]
+        self.write_histories()
         summary = {
             "status": status, "cause": cause, "time": s.time, "steps": s.steps,
-            "particles": s.particles.global_count(), "basis": s.basis.name,
+            "particles": s.particles.global_count(), "basis": s.basis.name, "ranks": s.grid.comm.size,
             "wall_time_s": wall, "wall_time_by_phase_s": dict(s.timings),
             "pressure_min_Pa": self.pressure_min, "pressure_max_Pa": self.pressure_max,
             "max_abs_div_v_per_s": self.max_divergence,
-            "occupied_cells_initial": self.initial_cells, "occupied_cells_final": self.cells[-1][1],
+            "occupied_cells_initial": self.cells[0][1], "occupied_cells_final": self.cells[-1][1],
             "mean_depth_final_m": self.cells[-1][1] * h * h / floor,
             "surface_height_final_m": self.cells[-1][2],
             "wall_stops": getattr(s, "wall_stops", 0),
             **self.options.extra,
         }
-        if comm.rank == 0:
-            output.write_csv(self.folder / "volume.csv",
-                             ["t", "occupied_cells", "occupied_area_m2", "mean_depth_m", "surface_height_m"],
-                             [(t, c, c * h * h, c * h * h / floor, z) for t, c, z in self.cells],
-                             comment="cells holding particles; mean depth = occupied area / floor width; "
-                                     "surface height = median over columns of the top particle's top")
-        if self.options.files:
+        if self.options.final_snapshot:
             output.snapshot(self.folder / "snapshot_final.png", s.particles,
                             title=f"t = {s.time:.3f} s ({status})", clim=self.options.pressure_scale)
+        if s.grid.comm.rank == 0:
+            output.write_json(self.folder / "summary.json", summary)
         return summary
 
 
-def run(solver, end_time: float, recorder: Recorder, progress: bool = True) -> dict:
-    """Step ``solver`` to ``end_time``, recording; a divergence stops the run cleanly.
+def run(solver, end_time: float, recorder: Recorder, progress: bool = True, checkpoints=None,
+        stop=None) -> dict:
+    """Step ``solver`` to ``end_time``, recording; a divergence or a stop request ends the run cleanly.
+
+    Args:
+        solver, recorder: as above; a recorder without history first records the
+            current (initial) state.
+        end_time: simulated time to reach.
+        progress: print a progress line (rank 0).
+        checkpoints: an object with ``after_step(solver, recorder)`` (called after each
+            step) and ``finish(solver, recorder, status)`` (called at the end unless the
+            run diverged), e.g. :class:`fempm.restart.Checkpoints`.
+        stop: an object whose ``requested(comm)`` returns the name of a stop request
+            (e.g. a signal), the same on every rank, or None; checked after each step.
 
     Returns:
-        The summary (see :meth:`Recorder.close`); ``status`` is ``"completed"`` or
-        ``"stopped"`` with the ``cause`` naming the time and the reason.
+        The summary (see :meth:`Recorder.close`); ``status`` is ``"completed"``,
+        ``"interrupted"`` or ``"stopped"`` (diverged), with the ``cause``.
     """
     comm = solver.grid.comm
     bar = Progress(end_time, comm, start_time=solver.time) if progress else None
     n_steps = int(round((end_time - solver.time) / solver.options.dt))
     status, cause = "completed", None
     wall0 = time.perf_counter()
+    if not recorder.front:
+        recorder.record()
     try:
         for _ in range(n_steps):
             start = time.perf_counter()
             solver.step()
             recorder.record()
+            if checkpoints:
+                checkpoints.after_step(solver, recorder)
             if bar:
                 bar.update(solver.time, time.perf_counter() - start)
+            request = stop.requested(comm) if stop else None
+            if request:
+                status, cause = "interrupted", f"{request} at t = {solver.time:.6g} s (step {solver.steps})"
+                break
     except SimulationDiverged as e:
         status, cause = "stopped", str(e)
     finally:
         if bar:
             bar.close()
+    if checkpoints and status != "stopped":
+        checkpoints.finish(solver, recorder, status)
     return recorder.close(status, cause, time.perf_counter() - wall0)

@@ -153,6 +153,16 @@ class Space:
             raise InputError(f"field {name!r} has {self.fields[name]} components, not {component + 1}")
         return self.bs * num.global_index[owned[on]] + first + component
 
+    def cell_dofs(self, name: str, cells) -> np.ndarray:
+        """Global indices of owned dofs of field ``name`` whose function is non-zero in any given cell."""
+        num = self.numbering
+        touching = np.zeros(self.basis.num_functions, dtype=bool)
+        touching[self.basis.cell_functions(np.asarray(cells, dtype=np.int64)).ravel()] = True
+        owned = num.local_functions[: num.num_owned]
+        first = self.field_offset(name)
+        comps = np.arange(first, first + self.fields[name])
+        return (self.bs * num.global_index[owned[touching[owned]]][:, None] + comps).ravel()
+
     @property
     def num_owned_dofs(self) -> int:
         """Dofs owned by this rank."""

@@ -23,14 +23,25 @@ What a form may use (see ``fempm.quadrature.Symbols``):
 Two measures: ``s.dx`` integrates at the particles; ``s.dx_lumped`` too, but with
 the grid functions taken at the basis function being tested (nodal quadrature,
 row-sum lumping): the inertia over it has the lumped mass matrix of MPM.
+
+A term whose switch is zero when the form is compiled (``mu`` = 0, ``alpha`` = 0,
+``pspg`` = 0) is left out of the form, so its kernel never computes it: forms are
+compiled once per run and these constants do not change during a run (see
+:func:`switched_on`).
 """
 
+import numpy as np
 import ufl
 
 
 def eps(w):
     """Symmetric gradient ``eps(w) = (grad w + grad w^T) / 2``."""
     return ufl.sym(ufl.grad(w))
+
+
+def switched_on(constant) -> bool:
+    """Whether a constant is non-zero now, at compilation: a term it multiplies is built only if so."""
+    return bool(np.any(constant.value != 0))
 
 
 # --- Newmark-beta with the grid reset every step (u_n = 0 on the grid) --------------
@@ -76,8 +87,8 @@ def momentum(s):
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     a_new = newmark_acceleration(du, v_n, a_n, dt, beta)
     v_new = newmark_velocity(du, v_n, a_n, dt, beta, gamma)
-    return (rho * ufl.inner(a_new - g, w) * s.dx_lumped
-            + (2 * mu * ufl.inner(eps(v_new), eps(w)) - p * ufl.div(w)) * s.dx)
+    stress = 2 * mu * ufl.inner(eps(v_new), eps(w)) - p * ufl.div(w) if switched_on(mu) else -p * ufl.div(w)
+    return rho * ufl.inner(a_new - g, w) * s.dx_lumped + stress * s.dx
 
 
 def continuity(s):
@@ -97,8 +108,10 @@ def continuity(s):
     _, q = s.test
     dt, beta, gamma, alpha = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("alpha")
     rho = s.particle("density")
-    crowding = ufl.max_value(s.grid("smoothed_density") - rho, 0)
     v_new = newmark_velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
+    if not switched_on(alpha):
+        return q * ufl.div(v_new) * s.dx
+    crowding = ufl.max_value(s.grid("smoothed_density") - rho, 0)
     return q * (ufl.div(v_new) - alpha / rho * crowding / dt) * s.dx
 
 
@@ -116,6 +129,8 @@ def pspg(s):
     """
     du, p = ufl.split(s.grid("U"))
     _, q = s.test
+    if not switched_on(s.constant("pspg")):
+        return 0
     rho, v_p = s.particle("density"), s.particle("velocity")
     dt, beta, mu = s.constant("dt"), s.constant("beta"), s.constant("mu")
     tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), dt, s.h, mu / rho)

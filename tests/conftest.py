@@ -1,5 +1,9 @@
 """Shared fixtures and the --full flag (long studies run only when it is given)."""
 
+import shutil
+import tempfile
+from pathlib import Path
+
 import pytest
 from mpi4py import MPI
 
@@ -22,3 +26,14 @@ def pytest_collection_modifyitems(config, items):
 @pytest.fixture
 def comm():
     return MPI.COMM_WORLD
+
+
+@pytest.fixture
+def shared_tmp():
+    """A temporary folder, the same on every rank (pytest's tmp_path differs per process)."""
+    comm = MPI.COMM_WORLD
+    path = Path(comm.bcast(tempfile.mkdtemp(prefix="fempm-") if comm.rank == 0 else None, root=0))
+    yield path
+    comm.barrier()
+    if comm.rank == 0:
+        shutil.rmtree(path, ignore_errors=True)

@@ -1,0 +1,120 @@
+"""The command line: ``fempm check SCENE``, ``fempm run SCENE``, ``fempm run --resume DIR``.
+
+Every mistake in a scene or on the command line ends with one message on stderr
+(``fempm: ...``) and exit status 2 before anything runs. Exit status 0: the run
+completed; 1: it stopped early (diverged; the outputs so far are kept); 128 + the
+signal number: interrupted by SIGINT or SIGTERM after writing a final checkpoint.
+Under ``mpirun`` every rank runs the same command; rank 0 prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+
+from mpi4py import MPI
+
+import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
+from fempm import simulation
+from fempm.errors import FempmError
+from fempm.scene import load_scene, to_toml
+
+__all__ = ["main"]
+
+
+class _ArgumentError(FempmError):
+    """A command-line mistake (argparse's message, without the usage text)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):
+        raise _ArgumentError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+
+def _positive(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
+    return value
+
+
+def parser() -> argparse.ArgumentParser:
+    """The argument parser of ``fempm``."""
+    top = _Parser(prog="fempm", description="Implicit MPM for incompressible viscous free-surface flow: "
+                  "check and run scenes (TOML files; see scenes/ and the README).")
+    commands = top.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    check = commands.add_parser("check", help="validate a scene and print it resolved (all defaults filled in)")
+    check.add_argument("scene", help="the scene file (.toml)")
+    run = commands.add_parser("run", help="run a scene, or resume a run from its checkpoint")
+    run.add_argument("scene", nargs="?", help="the scene file (.toml); not with --resume")
+    run.add_argument("--resume", metavar="DIR", help="continue the run whose checkpoint is in DIR")
+    run.add_argument("--out", metavar="DIR", help="output folder (overrides output.folder)")
+    run.add_argument("--end-time", type=_positive, metavar="T", help="simulated end time, s (overrides time.end)")
+    run.add_argument("--overwrite", action="store_true", help="start afresh in a folder holding an earlier run")
+    run.add_argument("--quiet", action="store_true", help="no progress line")
+    return top
+
+
+def main(argv=None) -> int:
+    """Run the command line; returns the exit status."""
+    comm = MPI.COMM_WORLD
+    try:
+        args = parser().parse_args(argv)
+        if args.command == "check":
+            return _check(args, comm)
+        if (args.scene is None) == (args.resume is None):
+            raise _ArgumentError("fempm run: give a scene file or --resume DIR (not both)")
+        if args.resume and (args.out or args.overwrite):
+            raise _ArgumentError("fempm run: --resume writes on into DIR; --out and --overwrite do not apply")
+        progress = False if args.quiet else None
+        if args.resume:
+            summary = simulation.resume(args.resume, comm, end_time=args.end_time, progress=progress)
+            folder = args.resume
+        else:
+            scene = load_scene(args.scene, folder=args.out, end_time=args.end_time)
+            summary = simulation.run_scene(scene, comm, overwrite=args.overwrite, progress=progress)
+            folder = scene.output.folder
+    except FempmError as e:
+        _say(comm, f"fempm: {e}" if not isinstance(e, _ArgumentError) else str(e))
+        return 2
+    return _report(summary, folder, comm)
+
+
+def _check(args, comm) -> int:
+    scene = load_scene(args.scene)
+    solver = simulation.build_solver(scene, comm)
+    if comm.rank == 0:
+        print(f"# {args.scene}: valid. The resolved scene (every default filled in):\n")
+        print(to_toml(scene))
+        print(f"# {solver.grid.nx} x {solver.grid.ny} cells of h = {solver.grid.h:g} m, "
+              f"{int(solver.grid.blocked.sum())} blocked by obstacles; {solver.particles.global_count()} particles; "
+              f"{scene.time.steps} steps of {scene.time.dt:g} s; {comm.size} rank(s)")
+    return 0
+
+
+def _report(summary: dict, folder, comm) -> int:
+    status = summary["status"]
+    if status == "completed":
+        _say(comm, f"fempm: {summary['steps']} steps to t = {summary['time']:.6g} s in "
+                   f"{summary['wall_time_s']:.1f} s; results in {folder}", sys.stdout)
+        return 0
+    if status == "interrupted":
+        _say(comm, f"fempm: interrupted by {summary['cause']}; a checkpoint and the outputs so "
+                   f"far are in {folder}; continue with `fempm run --resume {folder}`")
+        name = summary["cause"].split()[0]
+        return 128 + int(getattr(signal, name, 0))
+    _say(comm, f"fempm: {summary['cause']}; the outputs up to then are in {folder}")
+    return 1
+
+
+def _say(comm, message: str, stream=None):
+    if comm.rank == 0:
+        print(message, file=stream or sys.stderr, flush=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

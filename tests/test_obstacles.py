@@ -1,0 +1,98 @@
+"""Obstacles and per-side walls: what the scene asks for is what the solver holds.
+
+A block of water falls on a pillar of blocked cells: it must split around it, with no
+particle ever in an obstacle cell and the velocity zero on every function non-zero in
+one. A particle pushed into an obstacle stops the run on every rank with a message
+naming the cell (or is deleted with ``on_exit="delete"``). A no-slip floor holds the
+tangential velocity at zero on the floor, a slip floor does not.
+"""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import fempm
+from fempm.errors import ParticleOutsideGridError
+from fempm.scene import scene_from_text
+from fempm.simulation import build_solver
+
+PILLAR = """
+[domain]
+lower = [0.0, 0.0]
+upper = [0.3, 0.3]
+cells = [20, 20]
+[[bodies]]
+shape = "rectangle"
+lower = [0.075, 0.09]
+upper = [0.225, 0.165]
+[[obstacles]]
+shape = "rectangle"            # columns 9-10, rows 0-4: x in [0.135, 0.165], y in [0, 0.075]
+lower = [0.135, 0.0]
+upper = [0.165, 0.075]
+[time]
+end = 0.12
+dt = 1.0e-3
+[output]
+folder = "unused"
+"""
+
+
+@pytest.mark.mpi
+def test_water_falling_on_a_pillar_splits_around_it_and_never_enters():
+    comm = MPI.COMM_WORLD
+    scene = scene_from_text(PILLAR, "pillar.toml")
+    solver = build_solver(scene, comm)
+    grid = solver.grid
+    assert np.array_equal(np.flatnonzero(grid.blocked), [i + 20 * j for j in range(5) for i in (9, 10)])
+    blocked_dofs = solver.space.cell_dofs("u", np.flatnonzero(grid.blocked))
+    owned = solver.space.local_to_global[: solver.space.num_owned_dofs]
+    at_obstacle = np.isin(owned, blocked_dofs)
+    for _ in range(120):
+        solver.step()
+        assert not grid.blocked[solver.particles.cell].any()
+        assert np.all(solver.U.vector.array[: solver.space.num_owned_dofs][at_obstacle] == 0.0)
+    x = solver.particles.x
+    low = x[:, 1] < 0.075
+    count = lambda mask: comm.allreduce(int(mask.sum()))  # noqa: E731
+    assert count(low & (x[:, 0] < 0.135)) > 20 and count(low & (x[:, 0] > 0.165)) > 20  # split both ways
+    assert count(low & (x[:, 0] > 0.135) & (x[:, 0] < 0.165)) == 0
+    assert count(np.ones(len(x), bool)) == 200  # none lost
+
+
+@pytest.mark.mpi
+def test_a_particle_pushed_into_an_obstacle_stops_every_rank_or_is_deleted():
+    comm = MPI.COMM_WORLD
+    for on_exit in ("error", "delete"):
+        grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 1.0), 0.25)
+        grid.block([grid.cell_index(2, 1)])
+        particles = fempm.Particles(grid, on_exit=on_exit)
+        particles.add_points(np.array([[0.1, 0.1], [0.3, 0.3]]) if comm.rank == 0 else np.zeros((0, 2)), 0.01,
+                             ids=np.array([0, 1]) if comm.rank == 0 else np.zeros(0, dtype=int))
+        particles.fields["x"][particles.id == 1] = (0.6, 0.4)  # into column 2, row 1
+        if on_exit == "error":
+            with pytest.raises(ParticleOutsideGridError, match=r"particle 1 at \(0.6, 0.4\) entered the obstacle "
+                                                               r"cell \(column 2, row 1\)"):
+                particles.relocate()
+        else:
+            particles.relocate()
+            assert particles.global_count() == 1 and comm.allreduce(particles.lost_count) == 1
+
+
+@pytest.mark.mpi
+def test_a_no_slip_floor_holds_the_tangential_velocity_and_a_slip_floor_does_not():
+    comm = MPI.COMM_WORLD
+    scene_text = (Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml").read_text()
+    floor_speed = {}
+    for bottom in ("slip", "no-slip"):
+        scene = scene_from_text(scene_text.replace('bottom = "slip"', f'bottom = "{bottom}"'), "dambreak.toml")
+        solver = build_solver(scene, comm)
+        assert solver.options.wall_conditions() == {"left": "slip", "right": "slip", "bottom": bottom, "top": "slip"}
+        for _ in range(20):
+            solver.step()
+        floor = np.isin(solver.space.local_to_global[: solver.space.num_owned_dofs],
+                        solver.space.wall_dofs("u", 0, "b"))
+        floor_speed[bottom] = comm.allreduce(
+            float(np.abs(solver.U.vector.array[: solver.space.num_owned_dofs][floor]).max(initial=0.0)), op=MPI.MAX)
+    assert floor_speed["no-slip"] == 0.0 and floor_speed["slip"] > 1e-5

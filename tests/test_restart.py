@@ -1,0 +1,144 @@
+"""Checkpoints and restarts: a resumed run is the uninterrupted run, bit for bit.
+
+The dam-break scene is run short (60 steps) with every output on. In process (and on
+two ranks by the MPI suite): a run stopped at step 30 and resumed to 60 equals one run
+to 60. In subprocesses: SIGKILL after a checkpoint leaves only complete files and the
+resumed run ends as the uninterrupted one; SIGTERM (serial) and SIGINT (two ranks,
+forwarded by mpirun) stop after the step in progress with a final checkpoint.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from fempm.restart import CHECKPOINT
+from fempm.scene import load_scene, to_toml
+from fempm.simulation import resume, run_scene
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
+END = 0.06
+
+
+def _scene(folder, end=END):
+    scene = load_scene(SCENE, folder=folder, end_time=end)
+    return replace(scene, output=replace(scene.output, particles_interval=0.01, grid_interval=0.02,
+                                         snapshots=(0.03,), checkpoint_interval=0.01, progress=False))
+
+
+def _state(folder):
+    """Particle fields of the checkpoint and the bytes of every table and index."""
+    with np.load(Path(folder) / CHECKPOINT) as f:
+        particles = {k: f[k] for k in f.files if k.startswith("particle:")}
+        meta = json.loads(str(f["meta"]))
+    tables = {name: (Path(folder) / name).read_bytes() for name in ("front.csv", "volume.csv", "particles.pvd", "grid.pvd")}
+    return particles, meta, tables
+
+
+def _assert_same_run(a, b):
+    pa, ma, ta = _state(a)
+    pb, mb, tb = _state(b)
+    assert ma["steps"] == mb["steps"] and ma["time"] == mb["time"]
+    for name in pa:
+        assert np.array_equal(pa[name], pb[name]), f"particle field {name} differs"
+    assert ta == tb
+    files = lambda folder: sorted(p.name for p in Path(folder).iterdir() if p.suffix in (".vtp", ".vti", ".png"))  # noqa: E731
+    assert files(a) == files(b)
+    for name in files(a):
+        if name.endswith((".vtp", ".vti")):
+            assert (Path(a) / name).read_bytes() == (Path(b) / name).read_bytes(), name
+
+
+@pytest.mark.mpi
+def test_resume_is_bit_identical_to_the_uninterrupted_run(shared_tmp):
+    comm = MPI.COMM_WORLD
+    whole, part = shared_tmp / "whole", shared_tmp / "part"
+    assert run_scene(_scene(whole), comm)["status"] == "completed"
+    assert run_scene(_scene(part, end=0.03), comm)["steps"] == 30
+    summary = resume(part, comm, end_time=END, progress=False)
+    assert summary["status"] == "completed" and summary["resumed_from_step"] == 30 and summary["steps"] == 60
+    comm.barrier()
+    if comm.rank == 0:
+        _assert_same_run(whole, part)
+        front = np.loadtxt(part / "front.csv", delimiter=",", skiprows=2)
+        assert len(front) == 61 and front[-1, 1] > front[0, 1] + 0.01  # the water moved
+
+
+def _fempm(*args, ranks=1):
+    mpirun = str(Path(sys.executable).parent / "mpirun")
+    prefix = [mpirun, "-n", str(ranks)] if ranks > 1 else []
+    return subprocess.Popen([*prefix, sys.executable, "-m", "fempm.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+
+
+def _wait_for(path, process, timeout=120):
+    start = time.monotonic()
+    while not path.exists():
+        assert process.poll() is None, f"the run ended early: {process.communicate()}"
+        assert time.monotonic() - start < timeout, f"{path} did not appear"
+        time.sleep(0.01)
+
+
+def _assert_only_complete_files(folder) -> int:
+    """No temporary file; every index lists files that exist, every table and series file reads.
+
+    Returns the step of the checkpoint."""
+    import pyvista as pv
+
+    names = sorted(p.name for p in folder.iterdir())
+    assert not [n for n in names if n.startswith(".")], names
+    for index in folder.glob("*.pvd"):
+        for entry in ET.parse(index).getroot().iter("DataSet"):
+            assert (folder / entry.get("file")).exists()
+    for series in [*folder.glob("*.vtp"), *folder.glob("*.vti")]:
+        assert pv.read(series).n_points > 0
+    np.loadtxt(folder / "front.csv", delimiter=",", skiprows=2)
+    with np.load(folder / CHECKPOINT) as f:
+        return json.loads(str(f["meta"]))["steps"]
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns its own processes")
+def test_sigkill_loses_only_the_steps_since_the_checkpoint_and_no_file_is_half_written(tmp_path):
+    scene_file = tmp_path / "scene.toml"
+    scene_file.write_text(to_toml(_scene(tmp_path / "killed", end=0.2)))
+    run_scene(_scene(tmp_path / "whole", end=0.2), MPI.COMM_SELF)
+    killed = tmp_path / "killed"
+    process = _fempm("run", str(scene_file))
+    _wait_for(killed / CHECKPOINT, process)
+    process.send_signal(signal.SIGKILL)
+    process.communicate()
+    assert process.returncode == -signal.SIGKILL
+    assert _assert_only_complete_files(killed) % 10 == 0  # a periodic checkpoint, every 10 steps
+    process = _fempm("run", "--resume", str(killed))
+    out, err = process.communicate()
+    assert process.returncode == 0, err
+    _assert_same_run(tmp_path / "whole", killed)
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns its own processes")
+@pytest.mark.parametrize("ranks, signum", [(1, signal.SIGTERM), (2, signal.SIGINT)])
+def test_a_stop_signal_writes_a_final_checkpoint_and_ends_cleanly(tmp_path, ranks, signum):
+    folder = tmp_path / "run"
+    scene_file = tmp_path / "scene.toml"
+    scene_file.write_text(to_toml(_scene(folder, end=1.0)))
+    process = _fempm("run", str(scene_file), ranks=ranks)
+    _wait_for(folder / CHECKPOINT, process)
+    process.send_signal(signum)
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 128 + signum, err
+    assert "Traceback" not in err and f"interrupted by {signum.name}" in err
+    summary = json.loads((folder / "summary.json").read_text())
+    with np.load(folder / CHECKPOINT) as f:
+        steps = json.loads(str(f["meta"]))["steps"]
+    assert summary["status"] == "interrupted" and steps == summary["steps"] and 10 <= steps < 1000
+    assert len(np.loadtxt(folder / "front.csv", delimiter=",", skiprows=2)) == steps + 1
+    assert _assert_only_complete_files(folder) == steps
