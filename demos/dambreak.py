@@ -58,52 +58,70 @@ def load_reference(name: str) -> np.ndarray:
 
 
 # %% command line
-def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
-    """The demo's flags; unknown ``-fempm_...`` flags go to PETSc."""
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def common_arguments(description: str, out: str, forms: str) -> argparse.ArgumentParser:
+    """The flags every dam-break demo has (tank, particles, fluid, outputs)."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--end-time", type=float, default=1.0, help="simulated time, s (default 1.0)")
-    parser.add_argument("--dt", type=float, default=1.0e-3, help="time step, s (default 1e-3)")
     parser.add_argument("--cells", type=int, default=40, help="cells per side of the tank (default 40)")
     parser.add_argument("--ppc", type=int, default=2, help="particles per cell and direction (default 2)")
     parser.add_argument("--basis", choices=("bspline", "q1"), default="bspline", help="grid basis")
-    parser.add_argument("--no-pspg", action="store_true", help="switch PSPG off (the run then fails)")
-    parser.add_argument("--no-volume-correction", action="store_true", help="alpha = 0 (method.md eq. 3)")
-    parser.add_argument("--alpha", type=float, default=ImplicitOptions.alpha, help="volume correction")
     parser.add_argument("--walls", choices=("slip", "no-slip"), default="slip")
     parser.add_argument("--pic", type=float, default=0.0, help="PIC share of the FLIP/PIC blend, 0..1")
     parser.add_argument("--viscosity", type=float, default=1.0e-3, help="Pa s")
-    parser.add_argument("--forms", default="incompressible", help="weak forms file (default forms/incompressible.py)")
-    parser.add_argument("--out", type=Path, default=Path("results/dambreak"), help="output folder")
+    parser.add_argument("--forms", default=forms, help=f"weak forms file (default forms/{forms}.py)")
+    parser.add_argument("--out", type=Path, default=Path(out), help=f"output folder (default {out})")
     parser.add_argument("--output-interval", type=float, default=0.05, help="ParaView output every, s")
     parser.add_argument("--no-files", action="store_true", help="write only the tables and summary")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
-    args, rest = parser.parse_known_args(argv)
-    bad = [a for a in rest if not a.startswith("-fempm_")]
-    if bad:
-        parser.error(f"unrecognised arguments: {' '.join(bad)} (PETSc options take the prefix -fempm_)")
-    for name in ("end_time", "dt", "output_interval"):
+    return parser
+
+
+def check_common(parser: argparse.ArgumentParser, args: argparse.Namespace):
+    """Reject values of the common flags that cannot make a run."""
+    for name in ("end_time", "output_interval"):
         if not getattr(args, name) > 0:
             parser.error(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
     if args.cells < 4 or args.cells % 4:
         parser.error(f"--cells must be a positive multiple of 4 (the column is a quarter of the tank), got {args.cells}")
     if args.ppc < 1:
         parser.error(f"--ppc must be at least 1, got {args.ppc}")
+
+
+def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
+    """The demo's flags; unknown ``-fempm_...`` flags go to PETSc."""
+    parser = common_arguments(__doc__, "results/dambreak", "incompressible")
+    parser.add_argument("--dt", type=float, default=1.0e-3, help="time step, s (default 1e-3)")
+    parser.add_argument("--no-pspg", action="store_true", help="switch PSPG off (the run then fails)")
+    parser.add_argument("--no-volume-correction", action="store_true", help="alpha = 0 (method.md eq. 3)")
+    parser.add_argument("--alpha", type=float, default=ImplicitOptions.alpha, help="volume correction")
+    args, rest = parser.parse_known_args(argv)
+    bad = [a for a in rest if not a.startswith("-fempm_")]
+    if bad:
+        parser.error(f"unrecognised arguments: {' '.join(bad)} (PETSc options take the prefix -fempm_)")
+    check_common(parser, args)
+    if not args.dt > 0:
+        parser.error(f"--dt must be positive, got {args.dt}")
     return args, rest
 
 
 # %% set-up: grid, basis, particles, solver
-def build(args, comm=MPI.COMM_WORLD) -> ImplicitSolver:
-    """The tank, the water column and the implicit solver of the given flags."""
+def water_column(args, comm=MPI.COMM_WORLD) -> tuple[fempm.Basis, fempm.Particles]:
+    """The tank's grid basis and the water column of the given flags."""
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (TANK, TANK), (args.cells, args.cells))
     basis = fempm.BSpline2(grid) if args.basis == "bspline" else fempm.Q1(grid)
     water = fempm.Particles(grid)
     water.seed(fempm.Rectangle((0.0, 0.0), (WIDTH, HEIGHT)), per_cell=args.ppc, density=1000.0)
+    return basis, water
+
+
+def build(args, comm=MPI.COMM_WORLD) -> ImplicitSolver:
+    """The tank, the water column and the implicit solver of the given flags."""
     options = ImplicitOptions(
         dt=args.dt, viscosity=args.viscosity, gravity=(0.0, -GRAVITY),
         alpha=0.0 if args.no_volume_correction else args.alpha, pspg=not args.no_pspg,
         pic_blend=args.pic, walls=args.walls, forms=args.forms,
     )
-    return ImplicitSolver(basis, water, options)
+    return ImplicitSolver(*water_column(args, comm), options)
 
 
 # %% the run: step, record, write
@@ -111,11 +129,15 @@ def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
     """Run the dam break of ``args``; returns the summary (also written to summary.json)."""
     PETSc.Options().insertString(" ".join(petsc_args))
     solver = build(args, comm)
+    return record(solver, args, {"pspg": not args.no_pspg, "alpha": solver.options.alpha}, comm)
+
+
+def record(solver, args, extra: dict, comm=MPI.COMM_WORLD) -> dict:
+    """Step ``solver`` to ``--end-time`` writing the dam break's outputs; returns the summary."""
     recorder = Recorder(solver, RecorderOptions(
         folder=args.out, output_interval=args.output_interval, snapshot_times=(0.2, 0.6),
         files=not args.no_files, pressure_scale=(0.0, 1000.0 * GRAVITY * HEIGHT),
-        extra={"cells": args.cells, "particles_per_cell": args.ppc**2, "dt": args.dt,
-               "pspg": not args.no_pspg, "alpha": solver.options.alpha},
+        extra={"cells": args.cells, "particles_per_cell": args.ppc**2, "dt": solver.options.dt, **extra},
     ))
     summary = recording.run(solver, args.end_time, recorder, progress=not args.quiet)
     compare_front(recorder, summary, comm)
@@ -173,18 +195,23 @@ def plot_front(path, T, Z, error, summary):
 def main(argv=None) -> int:
     """Run from the command line; exit status 1 if the run stopped early."""
     args, petsc_args = parse_arguments(argv)
+    return report("dambreak", args, lambda: run(args, petsc_args))
+
+
+def report(name: str, args, run_demo) -> int:
+    """Call ``run_demo()`` and say on rank 0 how it ended: 0 completed, 1 stopped early, 2 bad input."""
     try:
-        summary = run(args, petsc_args)
+        summary = run_demo()
     except FempmError as e:
         if MPI.COMM_WORLD.rank == 0:
-            print(f"dambreak: {e}", file=sys.stderr)
+            print(f"{name}: {e}", file=sys.stderr)
         return 2
     if MPI.COMM_WORLD.rank == 0:
         if summary["status"] != "completed":
-            print(f"dambreak: {summary['cause']}; the outputs up to then are in {args.out}", file=sys.stderr)
+            print(f"{name}: {summary['cause']}; the outputs up to then are in {args.out}", file=sys.stderr)
         else:
             err = summary["front_rms_error_vs_koshizuka_oka"]
-            print(f"dambreak: {summary['steps']} steps in {summary['wall_time_s']:.1f} s; front error vs "
+            print(f"{name}: {summary['steps']} steps in {summary['wall_time_s']:.1f} s; front error vs "
                   f"experiment {'-' if err is None else f'{100 * err:.1f} %'}; results in {args.out}")
     return 0 if summary["status"] == "completed" else 1
 
