@@ -356,14 +356,15 @@ class ParticleForm:
         for coefficient in self._coefficients:
             kind, name = self.symbols.used[coefficient]
             if kind == "particle":
-                blocks.append(particles[name].reshape(n, -1))
+                field = particles[name]
+                blocks.append(field.reshape(n, int(np.prod(field.shape[1:], dtype=int))))  # n may be 0
             else:
                 gf = self.grid_functions[name]
                 jets = np.empty((n, phi.shape[1], gf.space.bs))
                 assembly.jets_at_particles(phi, lfun, gf.values, jets)
                 index = self._jet_cell.dof_index(gf.space.fields)  # [C, a] -> element dof
                 block = np.empty((n, index.size))
-                block[:, index.T.ravel()] = jets.reshape(n, -1)
+                block[:, index.T.ravel()] = jets.reshape(n, index.size)
                 blocks.append(block)
         if not blocks:
             return np.zeros((n, 1))

@@ -44,9 +44,11 @@ def _scatter(phi0, lfun, values, out):
 
 def particles_to_grid(space: Space, particles, values, name: str = "p2g") -> GridFunction:
     """``Q_i = sum_p values_p N_i(x_p)`` for ``values`` of shape ``(n,)`` or ``(n, bs)``."""
-    values = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(len(particles), -1))
-    if values.shape[1] != space.bs:
-        raise ValueError(f"P2G: {values.shape[1]} components given for a space of {space.bs}")
+    values = np.asarray(values, dtype=np.float64)
+    values = np.ascontiguousarray(values[:, None] if values.ndim == 1 else values)  # (n,) or (n, bs)
+    if values.shape != (len(particles), space.bs):
+        raise ValueError(f"P2G: values of shape {values.shape} given for {len(particles)} particles "
+                         f"and a space of {space.bs} components")
     phi, lfun = space.tabulate_particles(particles, order=0)
     out = GridFunction(space, name)
     _scatter(np.ascontiguousarray(phi[:, 0, :]), lfun, values, out.values)
