@@ -212,7 +212,7 @@ class ExplicitSolver:
         self.vector_space.tabulate_particles(p, order=1)  # one tabulation serves every phase
         m = transfer.lumped_mass(self.scalar_space, p).values[:, 0]
         integrals = self.basis.integrals[self.scalar_space.numbering.local_functions]
-        active = m >= self.options.min_support_fraction * self.reference_density * integrals
+        active = (m > 0) & (m >= self.options.min_support_fraction * self.reference_density * integrals)
         self._inverse_mass = np.where(active, 1.0 / np.where(active, m, 1.0), 0.0)[:, None]
         return transfer.momentum(self.vector_space, p).values
 
