@@ -30,9 +30,6 @@ particle leaves the grid.
 from __future__ import annotations
 
 import dataclasses
-import time
-from collections import defaultdict
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,6 +44,7 @@ from fempm.implicit import WALLS, SimulationDiverged
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space
+from fempm.timing import PhaseTimes
 
 __all__ = ["DEFAULT_CFL", "ExplicitOptions", "ExplicitSolver", "stable_time_step"]
 
@@ -133,8 +131,8 @@ class ExplicitSolver:
     Args:
         basis: the grid basis (``fempm.BSpline2`` or ``fempm.Q1``).
         particles: the fluid (fields ``density``, ``velocity``); ``pressure`` and
-            ``velocity_gradient`` fields are added if missing (a given ``pressure`` is
-            the initial one; the density is then taken as consistent with it).
+            ``velocity_gradient`` fields are added if missing, zero: the fluid starts
+            without stress. The pressure then follows the density by the equation of state.
         options: :class:`ExplicitOptions`.
 
     Attributes:
@@ -178,32 +176,26 @@ class ExplicitSolver:
         self.time = 0.0
         self.steps = 0
         self.max_divergence = 0.0
-        self.timings: dict[str, float] = defaultdict(float)
+        self.timings = PhaseTimes()  # wall seconds by phase
 
     # -- one step ------------------------------------------------------------------------
     def step(self):
         """Advance the particles by one time step (raises :class:`SimulationDiverged`)."""
-        with self._phase("project"):
+        with self.timings("project"):
             momentum = self.project()
-        with self._phase("forces"):
+        with self.timings("forces"):
             force = self.forces()
-        with self._phase("grid"):
+        with self.timings("grid"):
             v_old, v_new = self.update_grid(momentum, force)
-        with self._phase("update"):
+        with self.timings("update"):
             self.update_particles(v_old, v_new)
-        with self._phase("stress"):
+        with self.timings("stress"):
             x_old = self.update_stress()
         self._stop_if_diverged(x_old)
-        with self._phase("relocate"):
+        with self.timings("relocate"):
             self.particles.relocate()
         self.time += self.options.dt
         self.steps += 1
-
-    @contextmanager
-    def _phase(self, name: str):
-        start = time.perf_counter()
-        yield
-        self.timings[name] += time.perf_counter() - start
 
     # -- phases ------------------------------------------------------------------------
     def project(self) -> np.ndarray:
