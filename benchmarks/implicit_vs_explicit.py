@@ -397,12 +397,14 @@ def two_seconds(r: Run) -> str:
 
 
 def stability_table(runs: dict[str, list[Run]]) -> list[str]:
-    lines = ["| scheme | dt (s) | CFL number c dt / h | outcome | simulated time | steps | wall (s) | wall per simulated s (s) |",
+    lines = ["| scheme | dt (s) | CFL number c dt / h | outcome | simulated time | steps | wall (s) | "
+             "wall per simulated s (s) |",
              "|---|---|---|---|---|---|---|---|"]
     h = dambreak.TANK / 40
     for r in runs["implicit"] + runs["explicit_water"][:4]:
         courant = "–" if r.scheme == "implicit" else f"{sqrt(WATER_K / RHO) * r.dt / h:.3g}"
-        outcome = "ran the window" if r.status == "completed" else f"stopped at t = {r.time + r.dt:.3g} s (step {r.steps + 1}): {r.cause}"
+        outcome = ("ran the window" if r.status == "completed" else
+                   f"stopped at t = {r.time + r.dt:.3g} s (step {r.steps + 1}): {r.cause}")
         lines.append(f"| {r.scheme} | {r.dt:g} | {courant} | {outcome} | {r.time:.4g} s | {r.steps} | "
                      f"{r.wall:.3g} | {r.wall_per_second:.4g} |")
     return lines
@@ -413,7 +415,8 @@ def cfl_table(scan: list[Run]) -> list[str]:
     for r in scan:
         c = r.label.split("C = ")[1]
         outcome = "ran the window" if r.status == "completed" else f"stopped: {r.cause}"
-        lines.append(f"| {c} | {r.dt:.3g} | {outcome} | {r.time:.4g} s | {r.pressure[0] / 1e3:.3g} … {r.pressure[1] / 1e3:.3g} |")
+        lines.append(f"| {c} | {r.dt:.3g} | {outcome} | {r.time:.4g} s | "
+                     f"{r.pressure[0] / 1e3:.3g} … {r.pressure[1] / 1e3:.3g} |")
     return lines
 
 
@@ -422,17 +425,20 @@ def speed_table(runs: list[Run]) -> list[str]:
              "front error (T ≤ 3) | particle pressure range (kPa) |", "|---|---|---|---|---|---|---|---|---|"]
     for r in runs:
         outcome = f"ran {r.time:.3g} s" if r.status == "completed" else f"stopped at t = {r.time + r.dt:.3g} s"
-        lines.append(f"| {r.label} | {r.dt:.3g} | {outcome} | {r.steps} | {r.ms_per_step:.3g} | {r.wall:.4g} | {two_seconds(r)} | "
+        lines.append(f"| {r.label} | {r.dt:.3g} | {outcome} | {r.steps} | {r.ms_per_step:.3g} | {r.wall:.4g} | "
+                     f"{two_seconds(r)} | "
                      f"{pct(r.error)} | {r.pressure[0] / 1e3:.3g} … {r.pressure[1] / 1e3:.3g} |")
     return lines
 
 
 def ratio_lines(ratios: list[tuple[Run, float | None, Run | None, str]]) -> list[str]:
-    lines = ["| explicit run | its front error | implicit run matched | its front error | explicit / implicit wall time | how matched |",
+    lines = ["| explicit run | its front error | implicit run matched | its front error | "
+             "explicit / implicit wall time | how matched |",
              "|---|---|---|---|---|---|"]
     for explicit, ratio, match, note in ratios:
         lines.append(f"| {explicit.label} | {pct(explicit.error)} | {match.label if match else '–'} | "
-                     f"{pct(match.error) if match else '–'} | {'–' if ratio is None else f'{ratio:.3g}'} | {note} |")
+                     f"{pct(match.error) if match else '–'} | {'–' if ratio is None else f'{ratio:.3g}'} | "
+                     f"{note} |")
     return lines
 
 
@@ -475,15 +481,16 @@ def summary_sentences(ratios, pair, columns) -> list[str]:
     for explicit, ratio, match, note in ratios:
         if ratio is None:
             continue
-        verdict = f"{ratio:.3g} times the implicit one" if ratio >= 1 else f"{1 / ratio:.3g} times faster than the implicit one"
+        verdict = (f"{ratio:.3g} times the implicit one" if ratio >= 1 else
+                   f"{1 / ratio:.3g} times faster than the implicit one")
         out.append(f"- **{explicit.label}**: wall time per simulated second {verdict} ({match.label}; {note}).")
     implicit, *explicit = columns
     for c in explicit:
         out.append(f"- Settled column, **{c['label']}**: pressure scatter about ρ g depth {c['std']:.3g} Pa "
                    f"against {implicit['std']:.3g} Pa implicit at the end ({c['std_late']:.3g} against "
-                   f"{implicit['std_late']:.3g} Pa over the second half); {c['negative']} negative particle pressures at "
-                   f"the end against {implicit['negative']}; surface drift {100 * c['surface_drift']:+.2f} % against "
-                   f"{100 * implicit['surface_drift']:+.2f} %.")
+                   f"{implicit['std_late']:.3g} Pa over the second half); {c['negative']} negative particle "
+                   f"pressures at the end against {implicit['negative']}; surface drift "
+                   f"{100 * c['surface_drift']:+.2f} % against {100 * implicit['surface_drift']:+.2f} %.")
     return out
 
 
@@ -497,7 +504,8 @@ def write_page(path: Path, mode: str, w: Windows, runs, scan, columns, started: 
     plot_column(figures / "column_pressure.png", columns)
     explicit_runs = [r for r in runs["explicit_water"] + runs["explicit_c0"] if r.steps >= MEANINGFUL_STEPS]
     ratios = [(r, *equal_accuracy_ratio(r, runs["implicit"])) for r in explicit_runs]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
     h = dambreak.TANK / 40
     text = [
         "# Implicit against explicit MPM: stability, speed, accuracy, pressure",

@@ -129,7 +129,7 @@ def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
     """Run the dam break of ``args``; returns the summary (also written to summary.json)."""
     PETSc.Options().insertString(" ".join(petsc_args))
     solver = build(args, comm)
-    return record(solver, args, {"pspg": not args.no_pspg, "alpha": solver.options.alpha}, comm)
+    return record(solver, args, {"scheme": "implicit", "pspg": not args.no_pspg, "alpha": solver.options.alpha}, comm)
 
 
 def record(solver, args, extra: dict, comm=MPI.COMM_WORLD) -> dict:
@@ -171,7 +171,8 @@ def plot_front(path, T, Z, error, summary):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    ax.plot(T, Z, "-", color="tab:blue", label=f"fempm ({summary['basis']}, {summary['particles']} particles)")
+    label = f"fempm, {summary['scheme']} ({summary['basis']}, {summary['particles']} particles)"
+    ax.plot(T, Z, "-", color="tab:blue", label=label)
     ko = load_reference("koshizuka_oka_1996_experiment.csv")
     ax.plot(ko[:, 0], ko[:, 1], "o", color="black", label="Koshizuka & Oka 1996, experiment")
     for name, marker, label in (("martin_moyce_1952_n2_2_a2.25in.csv", "s", "Martin & Moyce 1952, a = 2.25 in"),

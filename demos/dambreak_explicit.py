@@ -61,7 +61,8 @@ def parse_arguments(argv=None):
     parser = common_arguments(__doc__, "results/dambreak_explicit", "weakly_compressible")
     parser.add_argument("--bulk-modulus", type=float, default=2.0e9, help="K of the water, Pa (default 2e9)")
     parser.add_argument("--sound-speed", default=None,
-                        help=f"artificial sound speed c0, m/s, instead of K; 'auto' = 10 sqrt(2gH) = {AUTO_SOUND_SPEED:.1f}")
+                        help="artificial sound speed c0, m/s, instead of K; "
+                             f"'auto' = 10 sqrt(2gH) = {AUTO_SOUND_SPEED:.1f}")
     parser.add_argument("--cfl", type=float, default=DEFAULT_CFL, help=f"CFL safety factor (default {DEFAULT_CFL})")
     parser.add_argument("--dt", type=float, default=None, help="time step, s (default: the CFL step)")
     args = parser.parse_args(argv)

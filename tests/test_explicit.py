@@ -88,7 +88,8 @@ def test_hydrostatic_column_bottom_pressure(comm):
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (WIDTH, 0.584), (10, 40))
     water = fempm.Particles(grid)
     water.seed(fempm.Rectangle((0.0, 0.0), (WIDTH, HEIGHT)), per_cell=2, density=RHO)
-    solver = ExplicitSolver(fempm.BSpline2(grid), water, ExplicitOptions(sound_speed=C0, max_speed=sqrt(2 * G * HEIGHT)))
+    options = ExplicitOptions(sound_speed=C0, max_speed=sqrt(2 * G * HEIGHT))
+    solver = ExplicitSolver(fempm.BSpline2(grid), water, options)
     ratios = []
     while solver.time < 0.4:
         solver.step()
