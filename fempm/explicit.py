@@ -50,12 +50,13 @@ __all__ = ["DEFAULT_CFL", "ExplicitOptions", "ExplicitSolver", "stable_time_step
 
 #: Safety factor C of the CFL condition. h / (c + |v|) is the limit of the lumped-mass,
 #: linear-element wave equation in 1-D. Measured on the dam break (B-spline, 40 x 40 cells,
-#: 800 particles; the table "Time step" of docs/implicit-vs-explicit.md): with
-#: c_0 = 23.9 m/s and |v|_max estimated as sqrt(2 g H) = 2.4 m/s it ran 2 s at C = 0.8 and
-#: blew up at the impact on the far wall at C = 0.9, where the flow reaches twice the
-#: estimated speed; with K = 2 GPa (c = 1414 m/s, the flow speed negligible beside it) it
-#: ran at dt = 1e-5 s, C = 0.97. Half of the limit leaves room for a flow faster than its
-#: estimate and for particles crowding during the run.
+#: 800 particles; the table "Time step" of docs/implicit-vs-explicit.md, full mode): with
+#: c_0 = 23.9 m/s and |v|_max estimated as sqrt(2 g H) = 2.4 m/s, 2 s of flow ran at
+#: C = 0.5 and 0.7, and blew up at C = 0.8 (t = 1.66 s) and 0.9 (t = 0.35 s, the impact on
+#: the far wall, where the flow reaches twice the estimated speed); with K = 2 GPa
+#: (c = 1414 m/s, the flow speed negligible beside it) 2 s ran at dt = 1e-5 s, C = 0.97.
+#: C = 0.5 stays below the smallest failing value by a factor 1.6, room for a flow
+#: faster than its estimate and for particles crowding.
 DEFAULT_CFL = 0.5
 
 
