@@ -46,13 +46,18 @@ import numpy as np
 from mpi4py import MPI
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
-from fempm import diagnostics, output, simulation
+from fempm import diagnostics, output, recording, simulation
 from fempm.errors import FempmError
 from fempm.implicit import ImplicitOptions
-from fempm.scene import Scene, parse_scene
+from fempm.recording import Recorder, RecorderOptions
+from fempm.scene import Scene, load_scene, parse_scene
 
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference" / "dambreak"
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
+_SHIPPED = load_scene(SCENE)
+TANK = _SHIPPED.domain.upper[0]  # 0.584 m
+WIDTH, HEIGHT = _SHIPPED.bodies[0].upper  # the column, L = 0.146 m and 2L
+GRAVITY = -_SHIPPED.gravity[1]
 
 
 def load_reference(name: str) -> np.ndarray:
@@ -61,56 +66,87 @@ def load_reference(name: str) -> np.ndarray:
 
 
 # %% command line
-def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
-    """The demo's flags; unknown ``-fempm_...`` flags go to PETSc."""
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def common_arguments(description: str, out: str, forms: str, pic: float) -> argparse.ArgumentParser:
+    """The flags every dam-break demo has (tank, particles, fluid, outputs)."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--end-time", type=float, default=1.0, help="simulated time, s (default 1.0)")
-    parser.add_argument("--dt", type=float, default=1.0e-3, help="time step, s (default 1e-3)")
     parser.add_argument("--cells", type=int, default=40, help="cells per side of the tank (default 40)")
     parser.add_argument("--ppc", type=int, default=2, help="particles per cell and direction (default 2)")
     parser.add_argument("--basis", choices=("bspline", "q1"), default="bspline", help="grid basis")
-    parser.add_argument("--no-pspg", action="store_true", help="switch PSPG off (the run then fails)")
-    parser.add_argument("--no-volume-correction", action="store_true", help="alpha = 0 (method.md eq. 3)")
-    parser.add_argument("--alpha", type=float, default=ImplicitOptions.alpha, help="volume correction")
     parser.add_argument("--walls", choices=("slip", "no-slip"), default="slip")
-    parser.add_argument("--pic", type=float, default=ImplicitOptions.pic_blend, help="PIC share of the FLIP/PIC blend, 0..1")
+    parser.add_argument("--pic", type=float, default=pic, help=f"PIC share of the FLIP/PIC blend, 0..1 (default {pic})")
     parser.add_argument("--viscosity", type=float, default=1.0e-3, help="Pa s")
-    parser.add_argument("--forms", default="incompressible", help="weak forms file (default forms/incompressible.py)")
-    parser.add_argument("--out", type=Path, default=Path("results/dambreak"), help="output folder")
+    parser.add_argument("--forms", default=forms, help=f"weak forms file (default forms/{forms}.py)")
+    parser.add_argument("--out", type=Path, default=Path(out), help=f"output folder (default {out})")
     parser.add_argument("--output-interval", type=float, default=0.05, help="ParaView output every, s")
     parser.add_argument("--no-files", action="store_true", help="write only the tables and summary")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
-    args, rest = parser.parse_known_args(argv)
-    bad = [a for k, a in enumerate(rest) if not a.startswith("-fempm_") and not (k and rest[k - 1].startswith("-fempm_"))]
-    if bad:
-        parser.error(f"unrecognised arguments: {' '.join(bad)} (PETSc options take the prefix -fempm_)")
+    return parser
+
+
+def check_common(parser: argparse.ArgumentParser, args: argparse.Namespace):
+    """Reject values of the common flags that cannot make a run."""
+    for name in ("end_time", "output_interval"):
+        if not getattr(args, name) > 0:
+            parser.error(f"--{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
     if args.cells < 4 or args.cells % 4:
         parser.error(f"--cells must be a positive multiple of 4 (the column is a quarter of the tank), got {args.cells}")
     if args.ppc < 1:
         parser.error(f"--ppc must be at least 1, got {args.ppc}")
+
+
+def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
+    """The demo's flags; unknown ``-fempm_...`` flags (with their values) go to PETSc."""
+    parser = common_arguments(__doc__, "results/dambreak", "incompressible", ImplicitOptions.pic_blend)
+    parser.add_argument("--dt", type=float, default=1.0e-3, help="time step, s (default 1e-3)")
+    parser.add_argument("--no-pspg", action="store_true", help="switch PSPG off (the run then fails)")
+    parser.add_argument("--no-volume-correction", action="store_true", help="alpha = 0 (method.md eq. 3)")
+    parser.add_argument("--alpha", type=float, default=ImplicitOptions.alpha, help="volume correction")
+    args, rest = parser.parse_known_args(argv)
+    bad = [a for k, a in enumerate(rest) if not a.startswith("-fempm_") and not (k and rest[k - 1].startswith("-fempm_"))]
+    if bad:
+        parser.error(f"unrecognised arguments: {' '.join(bad)} (PETSc options take the prefix -fempm_)")
+    check_common(parser, args)
     return args, rest
 
 
 # %% set-up: the shipped scene, changed by the flags
-def scene_of(args, petsc_args=()) -> Scene:
-    """``scenes/dambreak.toml`` with the flags applied (checked as any scene is)."""
+def tank(args) -> dict:
+    """``scenes/dambreak.toml`` (as TOML data) with the common flags applied."""
     data = tomllib.loads(SCENE.read_text())
-    data["time"].update(end=args.end_time, dt=args.dt)
+    data["time"]["end"] = args.end_time
     data["domain"]["cells"] = [args.cells, args.cells]
     data["bodies"][0]["particles_per_cell"] = args.ppc**2
     data["fluid"]["viscosity"] = args.viscosity
     data["walls"] = dict.fromkeys(data["walls"], args.walls)
-    forms = str(Path(args.forms).resolve()) if args.forms.endswith(".py") else args.forms
-    data["solver"].update(basis=args.basis, pspg=not args.no_pspg, pic_blend=args.pic, forms=forms,
-                          volume_correction=0.0 if args.no_volume_correction else args.alpha,
-                          petsc=_petsc_table(petsc_args))
+    data["solver"].update(basis=args.basis, pic_blend=args.pic)
     data["output"].update(folder=str(args.out), progress=not args.quiet)
     if args.no_files:
         for key in ("particles_interval", "grid_interval", "snapshots", "final_snapshot"):
             data["output"].pop(key, None)
     else:
         data["output"].update(particles_interval=args.output_interval, grid_interval=args.output_interval)
+    return data
+
+
+def scene_of(args, petsc_args=()) -> Scene:
+    """The implicit demo's scene: the tank with every flag applied (checked as any scene is)."""
+    data = tank(args)
+    data["time"]["dt"] = args.dt
+    forms = str(Path(args.forms).resolve()) if args.forms.endswith(".py") else args.forms
+    data["solver"].update(pspg=not args.no_pspg, forms=forms, petsc=_petsc_table(petsc_args),
+                          volume_correction=0.0 if args.no_volume_correction else args.alpha)
     return parse_scene(data, source=SCENE)
+
+
+def build(args, comm=MPI.COMM_WORLD):
+    """The implicit solver of the flags, ready to step (nothing is written)."""
+    return simulation.build_solver(scene_of(args), comm)
+
+
+def water_column(args, comm=MPI.COMM_WORLD) -> tuple:
+    """The tank's basis and the water column of the common flags, for another scheme."""
+    return simulation.build_material(parse_scene(tank(args), source=SCENE), comm)
 
 
 def _petsc_table(petsc_args) -> dict:
@@ -128,19 +164,32 @@ def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
     """Run the dam break of ``args``; returns the summary (also written to summary.json)."""
     scene = scene_of(args, petsc_args)
     summary = simulation.run_scene(scene, comm, overwrite=True, progress=not args.quiet)
-    compare_front(scene, summary, comm)
+    summary["scheme"] = "implicit"
+    compare_front(Path(scene.output.folder), summary, comm)
+    return summary
+
+
+def record(solver, args, extra: dict, comm=MPI.COMM_WORLD) -> dict:
+    """Step another scheme's ``solver`` to ``--end-time`` writing the dam break's outputs."""
+    o = parse_scene(tank(args), source=SCENE).output
+    recorder = Recorder(solver, RecorderOptions(
+        folder=Path(o.folder), particles_interval=o.particles_interval, grid_interval=o.grid_interval,
+        snapshot_times=o.snapshots, final_snapshot=o.final_snapshot, pressure_scale=o.pressure_scale,
+        extra={"dt": solver.options.dt, **extra},
+    ))
+    summary = recording.run(solver, args.end_time, recorder, progress=not args.quiet)
+    compare_front(recorder.folder, summary, comm)
     return summary
 
 
 # %% compare the front with the experiment, write it and plot it
-def compare_front(scene: Scene, summary: dict, comm):
+def compare_front(folder: Path, summary: dict, comm):
     """Front error against Koshizuka-Oka (T <= 3); front.png; completes summary.json."""
     error = None
     if comm.rank == 0:
-        folder, width, g = Path(scene.output.folder), scene.bodies[0].upper[0], -scene.gravity[1]
         front = np.loadtxt(folder / "front.csv", delimiter=",", skiprows=2, ndmin=2)
-        T = front[:, 0] * np.sqrt(2 * g / width)
-        Z = front[:, 1] / width
+        T = front[:, 0] * np.sqrt(2 * GRAVITY / WIDTH)
+        Z = front[:, 1] / WIDTH
         experiment = load_reference("koshizuka_oka_1996_experiment.csv")
         error = diagnostics.front_error(T, Z, experiment) if T[-1] >= 3.0 else None  # measured over T <= 3
         summary["front_rms_error_vs_koshizuka_oka"] = error
@@ -157,7 +206,8 @@ def plot_front(path, T, Z, error, summary):
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4.5))
-    ax.plot(T, Z, "-", color="tab:blue", label=f"fempm ({summary['basis']}, {summary['particles']} particles)")
+    label = f"fempm, {summary['scheme']} ({summary['basis']}, {summary['particles']} particles)"
+    ax.plot(T, Z, "-", color="tab:blue", label=label)
     ko = load_reference("koshizuka_oka_1996_experiment.csv")
     ax.plot(ko[:, 0], ko[:, 1], "o", color="black", label="Koshizuka & Oka 1996, experiment")
     for name, marker, label in (("martin_moyce_1952_n2_2_a2.25in.csv", "s", "Martin & Moyce 1952, a = 2.25 in"),
@@ -181,18 +231,23 @@ def plot_front(path, T, Z, error, summary):
 def main(argv=None) -> int:
     """Run from the command line; exit status 1 if the run stopped early."""
     args, petsc_args = parse_arguments(argv)
+    return report("dambreak", args, lambda: run(args, petsc_args))
+
+
+def report(name: str, args, run_demo) -> int:
+    """Call ``run_demo()`` and say on rank 0 how it ended: 0 completed, 1 stopped early, 2 bad input."""
     try:
-        summary = run(args, petsc_args)
+        summary = run_demo()
     except FempmError as e:
         if MPI.COMM_WORLD.rank == 0:
-            print(f"dambreak: {e}", file=sys.stderr)
+            print(f"{name}: {e}", file=sys.stderr)
         return 2
     if MPI.COMM_WORLD.rank == 0:
         if summary["status"] != "completed":
-            print(f"dambreak: {summary['cause']}; the outputs up to then are in {args.out}", file=sys.stderr)
+            print(f"{name}: {summary['cause']}; the outputs up to then are in {args.out}", file=sys.stderr)
         else:
             err = summary["front_rms_error_vs_koshizuka_oka"]
-            print(f"dambreak: {summary['steps']} steps in {summary['wall_time_s']:.1f} s; front error vs "
+            print(f"{name}: {summary['steps']} steps in {summary['wall_time_s']:.1f} s; front error vs "
                   f"experiment {'-' if err is None else f'{100 * err:.1f} %'}; results in {args.out}")
     return 0 if summary["status"] == "completed" else 1
 

@@ -181,7 +181,7 @@ class ImplicitSolver:
         self.timings: dict[str, float] = defaultdict(float)
         self.pressure_limit = options.pressure_limit or 20 * 1000.0 * 9.81 * (
             self.grid.upper[1] - self.grid.lower[1])
-        self._p2g_space = Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1})
+        self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
         self._R = self.space.create_vector()
         self._delta = self.J.createVecLeft()
         owned_dofs = self.space.local_to_global[: self.space.num_owned_dofs]
@@ -224,8 +224,8 @@ class ImplicitSolver:
         p = self.particles
         mass = p["mass"][:, None]
         sums = transfer.particles_to_grid(
-            self._p2g_space, p, np.hstack([mass, mass * p["velocity"], mass * p["acceleration"]]),
-            counts=True).values
+            self._p2g.space, p, np.hstack([mass, mass * p["velocity"], mass * p["acceleration"]]),
+            counts=True, out=self._p2g).values
         m = sums[:, :1]
         has_mass = m > 0
         safe = np.where(has_mass, m, 1.0)

@@ -37,11 +37,23 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
 
     The scene's PETSc options are checked first (see :func:`fempm.linear.check_options`).
     """
-    d, fluid, sv = scene.domain, scene.fluid, scene.solver
+    fluid, sv = scene.fluid, scene.solver
     preset = linear.direct_options(comm) if sv.linear == "direct" else linear.ITERATIVE
     petsc = {**preset, **sv.petsc}
     linear.set_options(petsc)
     linear.check_options(comm, list(sv.petsc), FIELDS)
+    basis, particles = build_material(scene, comm)
+    options = ImplicitOptions(
+        dt=scene.time.dt, beta=sv.newmark_beta, gamma=sv.newmark_gamma, viscosity=fluid.viscosity,
+        gravity=scene.gravity, alpha=sv.volume_correction, pspg=sv.pspg,
+        pic_blend=sv.pic_blend, walls=asdict(scene.walls), forms=sv.forms, petsc_options=petsc,
+    )
+    return ImplicitSolver(basis, particles, options)
+
+
+def build_material(scene: Scene, comm=MPI.COMM_WORLD) -> tuple:
+    """The grid (with its obstacles), the basis and the seeded particles of a scene."""
+    d, fluid = scene.domain, scene.fluid
     grid = (Grid.from_cells(comm, d.lower, d.upper, d.cells) if d.cells
             else Grid(comm, d.lower, d.upper, d.cell_size))
     grid.block(scene.blocked_cells())
@@ -49,12 +61,7 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     for body in scene.bodies:
         particles.seed(body.geometry(), per_cell=math.isqrt(body.particles_per_cell), density=fluid.density,
                        velocity=body.velocity)
-    options = ImplicitOptions(
-        dt=scene.time.dt, beta=sv.newmark_beta, gamma=sv.newmark_gamma, viscosity=fluid.viscosity,
-        gravity=scene.gravity, alpha=sv.volume_correction, pspg=sv.pspg,
-        pic_blend=sv.pic_blend, walls=asdict(scene.walls), forms=sv.forms, petsc_options=petsc,
-    )
-    return ImplicitSolver(BASES[sv.basis](grid), particles, options)
+    return BASES[scene.solver.basis](grid), particles
 
 
 def run_scene(scene: Scene, comm=MPI.COMM_WORLD, overwrite: bool = False, progress: bool | None = None) -> dict:

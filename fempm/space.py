@@ -222,12 +222,11 @@ class Space:
     def create_vector(self) -> dolfinx.la.Vector:
         """A DOLFINx vector with ghosts (``.array`` is owned then ghost dofs).
 
-        Its ``petsc_vec`` keeps the vector alive, so ``form.assemble_vector(p).petsc_vec``
-        is safe to keep.
+        Keep the vector itself while its ``petsc_vec`` is in use: the PETSc vector wraps
+        its memory. Each vector holds MPI neighbourhood communicators, so a time loop
+        should create its vectors once and reuse them.
         """
-        vector = dolfinx.la.vector(self.numbering.index_map, self.bs)
-        vector.petsc_vec.setAttr("fempm_owner", vector)
-        return vector
+        return dolfinx.la.vector(self.numbering.index_map, self.bs)
 
     # -- particle support -------------------------------------------------------------
     def support(self, particles) -> Support:

@@ -46,18 +46,20 @@ def _scatter(phi0, lfun, values, out, counts):
                 out[f, nc] += 1.0
 
 
-def particles_to_grid(space: Space, particles, values, name: str = "p2g", counts: bool = False) -> GridFunction:
+def particles_to_grid(space: Space, particles, values, name: str = "p2g", counts: bool = False,
+                      out: GridFunction | None = None) -> GridFunction:
     """``Q_i = sum_p values_p N_i(x_p)`` for ``values`` of shape ``(n,)`` or ``(n, bs)``.
 
     With ``counts`` the space has one component more, the last, which receives the
-    number of particles in each function's support.
+    number of particles in each function's support. ``out`` (a grid function of
+    ``space``) is reused if given: a time loop should not create vectors every step.
     """
     values = np.asarray(values, dtype=np.float64)
     values = np.ascontiguousarray(values.reshape(len(particles), int(np.prod(values.shape[1:], dtype=int))))
     if values.shape[1] + counts != space.bs:
         raise ValueError(f"P2G: {values.shape[1]} components given for a space of {space.bs}")
     phi, lfun = space.tabulate_particles(particles, order=0)
-    out = GridFunction(space, name)
+    out = out if out is not None else GridFunction(space, name)
     out.values[:] = 0.0
     _scatter(np.ascontiguousarray(phi[:, 0, :]), lfun, values, out.values, counts)
     out.scatter_reverse_add()
@@ -65,14 +67,15 @@ def particles_to_grid(space: Space, particles, values, name: str = "p2g", counts
     return out
 
 
-def lumped_mass(space: Space, particles) -> GridFunction:
-    """Nodal masses ``m_i = sum_p m_p N_i(x_p)`` on a scalar space."""
-    return particles_to_grid(space, particles, particles["mass"], "mass")
+def lumped_mass(space: Space, particles, out: GridFunction | None = None) -> GridFunction:
+    """Nodal masses ``m_i = sum_p m_p N_i(x_p)`` on a scalar space (into ``out`` if given)."""
+    return particles_to_grid(space, particles, particles["mass"], "mass", out=out)
 
 
-def momentum(space: Space, particles) -> GridFunction:
-    """Nodal momenta ``sum_p m_p v_p N_i(x_p)`` on a two-component space."""
-    return particles_to_grid(space, particles, particles["mass"][:, None] * particles["velocity"], "momentum")
+def momentum(space: Space, particles, out: GridFunction | None = None) -> GridFunction:
+    """Nodal momenta ``sum_p m_p v_p N_i(x_p)`` on a two-component space (into ``out`` if given)."""
+    return particles_to_grid(space, particles, particles["mass"][:, None] * particles["velocity"], "momentum",
+                             out=out)
 
 
 def smoothed_density(space: Space, particles) -> GridFunction:
