@@ -53,7 +53,8 @@ import dambreak_explicit  # noqa: E402
 import fempm  # noqa: E402
 from fempm import diagnostics, output  # noqa: E402
 from fempm.explicit import ExplicitOptions, ExplicitSolver  # noqa: E402
-from fempm.implicit import ImplicitOptions, ImplicitSolver, SimulationDiverged  # noqa: E402
+from fempm.errors import SimulationDiverged  # noqa: E402
+from fempm.implicit import ImplicitOptions, ImplicitSolver  # noqa: E402
 
 G, L, H, RHO = dambreak.GRAVITY, dambreak.WIDTH, dambreak.HEIGHT, 1000.0
 C0 = dambreak_explicit.AUTO_SOUND_SPEED

@@ -40,7 +40,8 @@ from fempm import transfer
 from fempm.bases import Basis
 from fempm.errors import InputError
 from fempm.formsfile import load_forms
-from fempm.implicit import WALLS, SimulationDiverged
+from fempm.errors import SimulationDiverged
+from fempm.implicit import WALLS
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space

@@ -16,9 +16,6 @@ compiled once, and re-assembled every step with the new particle data.
 
 from __future__ import annotations
 
-import time
-from collections import defaultdict
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,25 +26,18 @@ from mpi4py import MPI
 
 from fempm import transfer
 from fempm.bases import Basis
-from fempm.errors import FempmError, InputError, ParticleOutsideGridError
+from fempm.errors import InputError, ParticleOutsideGridError, SimulationDiverged
 from fempm.formsfile import load_forms
 from fempm.linear import LinearSolver, SolveFailed
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space
+from fempm.timing import PhaseTimes
 
 __all__ = ["ImplicitOptions", "ImplicitSolver", "SimulationDiverged"]
 
 WALLS = ("slip", "no-slip")
 SIDES = ("left", "right", "bottom", "top")
-
-
-class SimulationDiverged(FempmError):
-    """The run cannot go on; ``time``, ``step`` and ``cause`` say when and why."""
-
-    def __init__(self, time: float, step: int, cause: str):
-        super().__init__(f"stopped at t = {time:.6g} s (step {step}): {cause}")
-        self.time, self.step, self.cause = time, step, cause
 
 
 @dataclass
@@ -178,7 +168,7 @@ class ImplicitSolver:
         self.time = 0.0
         self.steps = 0
         self.newton_iterations = 0
-        self.timings: dict[str, float] = defaultdict(float)
+        self.timings = PhaseTimes()  # wall seconds by phase
         self.pressure_limit = options.pressure_limit or 20 * 1000.0 * 9.81 * (
             self.grid.upper[1] - self.grid.lower[1])
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
@@ -193,12 +183,12 @@ class ImplicitSolver:
     def step(self):
         """Advance the particles by one time step (raises :class:`SimulationDiverged`)."""
         try:
-            with self._phase("project"):
+            with self.timings("project"):
                 free = self.project()
             self.solve(free)
-            with self._phase("update"):
+            with self.timings("update"):
                 self.update_particles()
-            with self._phase("relocate"):
+            with self.timings("relocate"):
                 self.particles.relocate()
         except SolveFailed as e:
             raise SimulationDiverged(self.time + self.options.dt, self.steps + 1, str(e)) from None
@@ -206,12 +196,6 @@ class ImplicitSolver:
             raise SimulationDiverged(self.time + self.options.dt, self.steps + 1, str(e)) from None
         self.time += self.options.dt
         self.steps += 1
-
-    @contextmanager
-    def _phase(self, name: str):
-        start = time.perf_counter()
-        yield
-        self.timings[name] += time.perf_counter() - start
 
     # -- phases ------------------------------------------------------------------------
     def project(self) -> np.ndarray:
@@ -255,7 +239,7 @@ class ImplicitSolver:
         U.array[:] = 0.0
         r0 = norm = None
         for iteration in range(self.options.newton_max_it):
-            with self._phase("assemble"):
+            with self.timings("assemble"):
                 R = self.residual_form.assemble_vector(self.particles, self._R)
                 if not self.linear:
                     norm = self._free_norm(R)
@@ -263,7 +247,7 @@ class ImplicitSolver:
                     if iteration > 0 and norm <= self.options.newton_rtol * max(r0, 1e-300):
                         break
                 J = self.jacobian_form.assemble_matrix(self.particles, self.J)
-            with self._phase("solve"):
+            with self.timings("solve"):
                 R.petsc_vec.scale(-1.0)
                 delta = self.linear_solver.solve(J, R.petsc_vec, free, self._delta)
                 U.array[: self.space.num_owned_dofs] += delta.getArray(readonly=True)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from fempm import diagnostics, output
-from fempm.implicit import SimulationDiverged
+from fempm.errors import SimulationDiverged
 from fempm.progress import Progress
 
 __all__ = ["Recorder", "RecorderOptions", "run", "steps_between"]

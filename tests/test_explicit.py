@@ -17,7 +17,7 @@ import fempm  # noqa: E402
 from fempm.errors import InputError  # noqa: E402
 from fempm.explicit import ExplicitOptions, ExplicitSolver, stable_time_step  # noqa: E402
 from fempm.formsfile import load_forms  # noqa: E402
-from fempm.implicit import SimulationDiverged  # noqa: E402
+from fempm.errors import SimulationDiverged  # noqa: E402
 from fempm.output import gather_particles  # noqa: E402
 from helpers import random_particles  # noqa: E402
 
