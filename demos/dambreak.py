@@ -23,7 +23,8 @@ it too); the flags below change it. The run writes to ``--out`` (default
   seed's Fig. 2a);
 * ``snapshot_t0.200.png``, ``snapshot_t0.600.png``, ``snapshot_final.png``: particles
   coloured by pressure (Figs. 2b, 3);
-* ``particles.pvd`` (+ ``particles_*.vtp``) and ``grid.pvd`` (+ ``grid_*.vti``):
+* ``particles.pvd`` (+ ``particles_*.vtp``), ``grid.pvd`` (+ ``grid_*.vti``) and ``grid.bp``
+  (the grid series as one VTX stream, written when the run ends):
   particles and grid fields for ParaView, every ``--output-interval`` seconds;
 * ``volume.csv``: cells occupied by water and the mean depth they make (Fig. 4);
 * ``summary.json``: front error, steps, wall time by phase, pressure range, max |div v|;

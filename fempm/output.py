@@ -174,6 +174,7 @@ class GridSeries(_Series):
 
     def __init__(self, folder: Path, basis, name: str = "grid", entries=()):
         super().__init__(folder, name, entries)
+        self.basis = basis
         grid, k = basis.grid, basis.degree
         self.dimensions = (k * grid.nx + 1, k * grid.ny + 1, 1)
         self.spacing = (grid.h / k, grid.h / k, 1.0)
@@ -207,6 +208,50 @@ class GridSeries(_Series):
         with atomic_path(self.folder / filename) as tmp:
             image.save(tmp)
         self._add(t, filename)
+
+    def write_vtx(self):
+        """The whole series once more as one VTX stream, ``grid.bp`` (DOLFINx/ADIOS2, ParaView's
+        VTX reader): velocity and pressure as Lagrange functions of the basis's degree, whose
+        nodes are the image's points. Written to a temporary folder, then renamed."""
+        import shutil
+
+        import pyvista as pv
+
+        import dolfinx.fem
+        import dolfinx.io
+
+        from fempm.lagrange import lagrange_element
+
+        entries = self.comm.bcast(self.entries, root=0)  # rank 0 keeps the series' index
+        if not entries:
+            return
+        grid, k = self.basis.grid, self.basis.degree
+        mesh = grid.mesh
+        spaces = {name: dolfinx.fem.functionspace(mesh, lagrange_element(mesh.basix_cell(), k, {name: n}))
+                  for name, n in (("velocity", 2), ("pressure", 1))}
+        functions = {name: dolfinx.fem.Function(V, name=name) for name, V in spaces.items()}
+        node = np.rint((spaces["pressure"].tabulate_dof_coordinates()[:, :2] - grid.lower) / (grid.h / k))
+        point = (node[:, 0] + self.dimensions[0] * node[:, 1]).astype(np.int64)  # image point of each dof
+        final = self.folder / f"{self.name}.bp"
+        tmp = self.folder / f".{self.name}.tmp.bp"
+        if self.comm.rank == 0 and tmp.exists():
+            shutil.rmtree(tmp)
+        self.comm.barrier()
+        writer = dolfinx.io.VTXWriter(self.comm, str(tmp), list(functions.values()), engine="BP4",
+                                      mesh_policy=dolfinx.io.VTXMeshPolicy.reuse)
+        for t, filename in entries:
+            image = pv.read(self.folder / filename)
+            for name, f in functions.items():
+                values = np.asarray(image.point_data[name])
+                f.x.array[:] = (values[point, :2] if values.ndim == 2 else values[point]).ravel()
+            writer.write(t)
+        writer.close()
+        self.comm.barrier()
+        if self.comm.rank == 0:
+            if final.exists():
+                shutil.rmtree(final)
+            os.replace(tmp, final)
+        self.comm.barrier()
 
 
 def snapshot(path: str | Path, particles, field: str = "pressure", title: str = "",

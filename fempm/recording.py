@@ -125,6 +125,8 @@ class Recorder:
         s = self.solver
         h, floor = s.grid.h, s.grid.upper[0] - s.grid.lower[0]
         self.write_histories()
+        if self.grid_series:
+            self.grid_series.write_vtx()
         summary = {
             "status": status, "cause": cause, "time": s.time, "steps": s.steps,
             "particles": s.particles.global_count(), "basis": s.basis.name, "ranks": s.grid.comm.size,

@@ -130,5 +130,8 @@ def test_the_demo_writes_its_files_on_any_number_of_ranks(tmp_path):
         for name in ("front.csv", "volume.csv", "summary.json", "particles.pvd", "snapshot_final.png"):
             assert (out / name).stat().st_size > 0, name
         assert len(list(out.glob("particles_*.vtp"))) == 3  # t = 0, 0.01, 0.02
+        assert len(list(out.glob("grid_*.vti"))) == 3
+        # the grid series also as one VTX stream: ADIOS2's index has 64 bytes per step after a header
+        assert ((out / "grid.bp" / "md.idx").stat().st_size - 64) // 64 == 3
         volume = np.loadtxt(out / "volume.csv", delimiter=",", skiprows=2)
         assert volume[0, 1] == 200 and volume[0, 4] == pytest.approx(H)
