@@ -149,11 +149,10 @@ def assemble_vector(kernel, out, x, cell, weight, phi, lfun, coeffs, consts, per
 
 
 @numba.njit(cache=True)
-def _nodal_kernel(kernel, K, w, coeffs_p, f, nodal, consts, coords):
-    """``K`` = the kernel with every grid function taken at function ``f``: its coefficient
-    as the value, no derivatives (``nodal = (G, slot_pos, slot_col, zero_pos)``)."""
+def _nodal_kernel(kernel, K, w, f, nodal, consts, coords):
+    """``K`` = the kernel of coefficients ``w`` with every grid function taken at function ``f``:
+    its coefficient as the value, no derivatives (``nodal = (G, slot_pos, slot_col, zero_pos)``)."""
     G, slot_pos, slot_col, zero_pos = nodal
-    w[:] = coeffs_p
     for s in range(slot_pos.shape[0]):
         w[slot_pos[s]] = G[f, slot_col[s]]
     for s in range(zero_pos.shape[0]):
@@ -184,7 +183,8 @@ def assemble_matrix_lumped(kernel, values, indptr, stencil, x, weight, phi0, lfu
         for l in range(nl):
             f = lfun[p, l]
             if per_function or l == 0:
-                _nodal_kernel(kernel, K, w, coeffs[p], f, nodal, consts, coords)
+                w[:] = coeffs[p]
+                _nodal_kernel(kernel, K, w, f, nodal, consts, coords)
             scale = weight[p] * phi0[p, l]
             s = stencil[f, centre]
             for C in range(bs):
@@ -207,10 +207,75 @@ def assemble_vector_lumped(kernel, out, x, weight, phi0, lfun, coeffs, consts, p
         for l in range(nl):
             f = lfun[p, l]
             if per_function or l == 0:
-                _nodal_kernel(kernel, K, w, coeffs[p], f, nodal, consts, coords)
+                w[:] = coeffs[p]
+                _nodal_kernel(kernel, K, w, f, nodal, consts, coords)
             scale = weight[p] * phi0[p, l]
             for C in range(bs):
                 out[bs * f + C] += scale * K[perm[C, 0]]
+    return 0
+
+
+@numba.njit(cache=True)
+def nodal_sums(phi0, lfun, weight, coeffs, particle_slots, out):
+    """``out[f, 0] += w_p N_f(x_p)``, ``out[f, 1 + s] += w_p N_f(x_p) coeffs[p, particle_slots[s]]``."""
+    for p in range(phi0.shape[0]):
+        for l in range(phi0.shape[1]):
+            f = lfun[p, l]
+            wn = weight[p] * phi0[p, l]
+            out[f, 0] += wn
+            for s in range(particle_slots.shape[0]):
+                out[f, 1 + s] += wn * coeffs[p, particle_slots[s]]
+
+
+@numba.njit(cache=True)
+def _function_kernel(kernel, K, w, f, sums, particle_slots, nodal, consts, coords):
+    """The kernel at function ``f``: particle fields averaged with the weights ``w_p N_f(x_p)``,
+    grid functions at their coefficient, no derivatives."""
+    w[:] = 0.0
+    for s in range(particle_slots.shape[0]):
+        w[particle_slots[s]] = sums[f, 1 + s] / sums[f, 0]
+    _nodal_kernel(kernel, K, w, f, nodal, consts, coords)
+
+
+@numba.njit(cache=True)
+def assemble_matrix_nodal_affine(kernel, values, indptr, stencil, sums, n_owned, particle_slots, width,
+                                 consts, perm, h, nodal):
+    """Nodal quadrature of a bilinear form affine in the particle fields: once per owned function,
+    ``A[(f, C), (f, D)] += W_f K[(C, 0), (D, 0)]`` with ``W_f = sum_p w_p N_f(x_p)``."""
+    bs, nq = perm.shape
+    nk = bs * nq
+    nl_side = int(np.sqrt(stencil.shape[1]) + 0.5)
+    centre = (nl_side * nl_side - 1) // 2
+    K = np.zeros(nk * nk)
+    w = np.empty(width)
+    coords = np.zeros(12)
+    _jet_cell(np.zeros(2), h, coords)
+    for f in range(n_owned):
+        if sums[f, 0] <= 0.0:
+            continue
+        _function_kernel(kernel, K, w, f, sums, particle_slots, nodal, consts, coords)
+        s = stencil[f, centre]
+        for C in range(bs):
+            base = indptr[bs * f + C] + bs * s
+            for D in range(bs):
+                values[base + D] += sums[f, 0] * K[perm[C, 0] * nk + perm[D, 0]]
+    return 0
+
+
+@numba.njit(cache=True)
+def assemble_vector_nodal_affine(kernel, out, sums, n_owned, particle_slots, width, consts, perm, h, nodal):
+    """Nodal quadrature of a linear form affine in the particle fields: ``b[(f, C)] += W_f k[(C, 0)]``."""
+    bs, nq = perm.shape
+    K = np.zeros(bs * nq)
+    w = np.empty(width)
+    coords = np.zeros(12)
+    _jet_cell(np.zeros(2), h, coords)
+    for f in range(n_owned):
+        if sums[f, 0] <= 0.0:
+            continue
+        _function_kernel(kernel, K, w, f, sums, particle_slots, nodal, consts, coords)
+        for C in range(bs):
+            out[bs * f + C] += sums[f, 0] * K[perm[C, 0]]
     return 0
 
 

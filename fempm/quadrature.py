@@ -273,6 +273,31 @@ class _GaussTarget:
         return dolfinx.fem.Function(self.space(fields), name=f"grid:{name}")
 
 
+def _affine_in_particle_fields(integrals, symbols) -> bool:
+    """Whether the integrands are affine in the particle fields jointly and do not use ``x``.
+
+    Then the nodal quadrature ``sum_p w_p N_f(x_p) g(particle fields_p, grid at f)`` equals
+    ``W_f g(averaged particle fields, grid at f)`` with ``W_f = sum_p w_p N_f(x_p)`` and the
+    averages weighted alike: one kernel call per basis function instead of one per
+    particle and function.
+    """
+    from ufl.classes import SpatialCoordinate
+    from ufl.corealg.traversal import unique_pre_traversal
+
+    if not integrals:
+        return False
+    if any(isinstance(node, SpatialCoordinate) for i in integrals for node in unique_pre_traversal(i.integrand())):
+        return False
+    form = ufl.Form(integrals)
+    fields = [c for c in form.coefficients() if symbols.used.get(c, ("",))[0] == "particle"]
+    for first in fields:
+        once = ufl.derivative(form, first)
+        for second in fields:
+            if not ufl.algorithms.expand_derivatives(ufl.derivative(once, second)).empty():
+                return False
+    return True
+
+
 def _check_cell_integrals(form: ufl.Form):
     kinds = {integral.integral_type() for integral in form.integrals()}
     if kinds - {"cell"}:
@@ -350,6 +375,8 @@ class ParticleForm:
         lumped_grid = {c for i in lumped for c in ufl.algorithms.extract_coefficients(i.integrand())
                        if symbols.used.get(c, ("",))[0] == "grid"}
         self._lumped_per_function = bool(lumped_grid)  # else one kernel call per particle will do
+        self._lumped_affine = _affine_in_particle_fields(lumped, symbols)
+        self._nodal_sums = None  # per-function weights and weighted particle fields, made once
         self._perm = target.jet_cell.dof_index(space.fields)
         self._jet_cell = target.jet_cell
 
@@ -396,6 +423,30 @@ class ParticleForm:
         as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
         return G, as_int(slot_pos), as_int(slot_col), as_int(zero_pos)
 
+    def _particle_slots(self) -> np.ndarray:
+        """Positions of the particle fields in the packed coefficients."""
+        slots, offset = [], 0
+        for coefficient in self._coefficients:
+            kind, name = self.symbols.used[coefficient]
+            size = (int(np.prod(self.particle_shape(name), dtype=int)) if kind == "particle"
+                    else self._jet_cell.dof_index(self.grid_functions[name].space.fields).size)
+            if kind == "particle":
+                slots.extend(range(offset, offset + size))
+            offset += size
+        return np.asarray(slots, dtype=np.int64)
+
+    def _function_sums(self, phi, lfun, weight, coeffs) -> np.ndarray:
+        """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks."""
+        slots = self._particle_slots()
+        if self._nodal_sums is None:
+            self._nodal_sums = dolfinx.la.vector(self.space.numbering.index_map, 1 + len(slots))
+        sums = self._nodal_sums
+        sums.array[:] = 0.0
+        table = sums.array.reshape(-1, 1 + len(slots))
+        assembly.nodal_sums(np.ascontiguousarray(phi[:, 0, :]), lfun, weight, coeffs, slots, table)
+        sums.scatter_reverse(dolfinx.la.InsertMode.add)
+        return table
+
     def particle_shape(self, name: str) -> tuple[int, ...]:
         """Value shape of a particle field the form uses."""
         return tuple(self.symbols._particle_shapes[name])
@@ -425,7 +476,13 @@ class ParticleForm:
                 self._kernels[_REGULAR], target.values, lay.indptr, lay.stencil, particles.x,
                 particles.cell, weight, phi, lfun, coeffs, consts, self._perm, h,
             )
-        if _LUMPED in self._kernels:
+        if _LUMPED in self._kernels and self._lumped_affine:
+            assembly.assemble_matrix_nodal_affine(
+                self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
+                self._function_sums(phi, lfun, weight, coeffs), self.space.numbering.num_owned,
+                self._particle_slots(), coeffs.shape[1], consts, self._perm, h, self._nodal_slots(),
+            )
+        elif _LUMPED in self._kernels:
             assembly.assemble_matrix_lumped(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
                 np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, self._nodal_slots(),
@@ -446,7 +503,13 @@ class ParticleForm:
                 self._kernels[_REGULAR], b.array, particles.x, particles.cell, weight, phi, lfun,
                 coeffs, consts, self._perm, h,
             )
-        if _LUMPED in self._kernels:
+        if _LUMPED in self._kernels and self._lumped_affine:
+            assembly.assemble_vector_nodal_affine(
+                self._kernels[_LUMPED], b.array, self._function_sums(phi, lfun, weight, coeffs),
+                self.space.numbering.num_owned, self._particle_slots(), coeffs.shape[1], consts, self._perm, h,
+                self._nodal_slots(),
+            )
+        elif _LUMPED in self._kernels:
             assembly.assemble_vector_lumped(
                 self._kernels[_LUMPED], b.array, particles.x, weight, np.ascontiguousarray(phi[:, 0, :]),
                 lfun, coeffs, consts, self._perm, h, self._nodal_slots(), self._lumped_per_function,

@@ -229,3 +229,22 @@ def test_lumped_integrand_may_not_take_derivatives(comm):
     particles = fempm.Particles(grid)
     with pytest.raises(InputError, match="dx_lumped may not take derivatives"):
         fempm.ParticleForm(lambda s: ufl.inner(ufl.grad(s.trial), ufl.grad(s.test)) * s.dx_lumped, space, particles)
+
+
+@pytest.mark.parametrize("Basis", BASES)
+def test_lumped_quadrature_of_an_integrand_not_affine_in_particle_fields(comm, Basis):
+    """rho_p^2 u.v over dx_lumped: evaluated per particle and function, diag = sum_p V_p rho_p^2 N_f."""
+    from fempm import transfer
+
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.2)
+    space = fempm.Space(Basis(grid), {"u": 2, "p": 1})
+    particles = random_particles(grid, [0, 2, 5, 1])
+    form = fempm.ParticleForm(
+        lambda s: s.particle("density") ** 2 * ufl.inner(s.trial[0], s.test[0]) * s.dx_lumped, space, particles)
+    assert not form._lumped_affine
+    A = form.assemble_matrix(particles)
+    scalar = fempm.Space(space.basis, {"m": 1})
+    expected = transfer.particles_to_grid(scalar, particles, particles["volume"] * particles["density"] ** 2)
+    owned = space.numbering.num_owned
+    diagonal = A.getDiagonal().getArray().reshape(-1, 3)
+    np.testing.assert_allclose(diagonal[:, 0], expected.values[:owned, 0], rtol=1e-13)
