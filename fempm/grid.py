@@ -69,6 +69,35 @@ def square_cell_size(lower, upper, cells) -> float:
     return hx
 
 
+def bisect(weights: np.ndarray, parts: int) -> np.ndarray:
+    """Recursive coordinate bisection of a ``(ny, nx)`` array of cell weights into ``parts``.
+
+    Each cut goes across the longer side of the current block, where the weight on one
+    side is proportional to the number of parts it gets. Returns the part of every cell.
+    """
+    part = np.zeros(weights.shape, dtype=np.int32)
+
+    def split(rows: slice, cols: slice, first: int, count: int):
+        if count == 1:
+            part[rows, cols] = first
+            return
+        block = weights[rows, cols]
+        left = count // 2
+        axis = 1 if block.shape[1] >= block.shape[0] else 0  # cut across the longer side
+        profile = np.concatenate([[0.0], np.cumsum(block.sum(axis=1 - axis))])  # weight left of each cut
+        target = profile[-1] * left / count
+        cut = int(np.argmin(np.abs(profile[1:-1] - target))) + 1 if block.shape[axis] > 1 else 0
+        start = (cols if axis else rows).start
+        low, high = slice(start, start + cut), slice(start + cut, start + block.shape[axis])
+        if axis:
+            split(rows, low, first, left), split(rows, high, first + left, count - left)
+        else:
+            split(low, cols, first, left), split(high, cols, first + left, count - left)
+
+    split(slice(0, weights.shape[0]), slice(0, weights.shape[1]), 0, parts)
+    return part
+
+
 class Grid:
     """A rectangle ``[x0, x1] x [y0, y1]`` cut into square cells of size ``h``.
 
@@ -77,6 +106,10 @@ class Grid:
         lower: ``(x0, y0)``.
         upper: ``(x1, y1)``.
         h: cell size; the width and height must be whole multiples of it.
+        weights: work expected in each structured cell (e.g. its particles), to share
+            the cells between the ranks by weighted recursive coordinate bisection.
+            Default: DOLFINx's graph partitioner, which shares cells by number, so
+            water filling a corner of a tank would sit on one rank.
 
     Attributes:
         mesh: the DOLFINx quadrilateral mesh.
@@ -90,7 +123,7 @@ class Grid:
             :meth:`block`); no material may enter them.
     """
 
-    def __init__(self, comm: MPI.Comm, lower, upper, h: float):
+    def __init__(self, comm: MPI.Comm, lower, upper, h: float, weights=None):
         self.nx, self.ny = cell_counts(lower, upper, h)
         self.comm = comm
         self.lower = np.asarray(lower, dtype=np.float64)
@@ -103,6 +136,7 @@ class Grid:
             [self.nx, self.ny],
             dolfinx.mesh.CellType.quadrilateral,
             ghost_mode=dolfinx.mesh.GhostMode.none,
+            partitioner=None if weights is None or comm.size == 1 else self._partitioner(weights),
         )
         n_owned = self.mesh.topology.index_map(2).size_local
         mid = dolfinx.mesh.compute_midpoints(self.mesh, 2, np.arange(n_owned, dtype=np.int32))
@@ -116,10 +150,29 @@ class Grid:
             self.owner[cells] = rank
         self.blocked = np.zeros(self.num_cells, dtype=bool)
 
+    def _partitioner(self, weights):
+        """A DOLFINx cell partitioner sending each cell to its part of a weighted bisection."""
+        import dolfinx.cpp.graph
+
+        weights = np.asarray(weights, dtype=np.float64).reshape(self.ny, self.nx)
+        # empty cells still hold dofs: give them a little weight so they are shared too
+        weights = weights + 1e-3 * max(weights.max(initial=0.0), 1.0)
+        part = bisect(weights, self.comm.size).ravel()
+        nx, ny = self.nx, self.ny
+
+        def partition(comm, nparts, cell_types, cells):
+            # create_rectangle numbers the vertices column by column (y fastest): the lowest
+            # vertex of cell (i, j) is j + (ny + 1) i (checked by a test on 2 ranks)
+            lowest = np.asarray(cells[0]).reshape(-1, 4).min(axis=1)
+            i, j = lowest // (ny + 1), lowest % (ny + 1)
+            return dolfinx.cpp.graph.AdjacencyList_int32(part[i + nx * j].astype(np.int32))
+
+        return partition
+
     @classmethod
-    def from_cells(cls, comm: MPI.Comm, lower, upper, cells) -> "Grid":
+    def from_cells(cls, comm: MPI.Comm, lower, upper, cells, weights=None) -> "Grid":
         """A grid given by its number of cells per direction; the cells must be square."""
-        return cls(comm, lower, upper, square_cell_size(lower, upper, cells))
+        return cls(comm, lower, upper, square_cell_size(lower, upper, cells), weights)
 
     def block(self, cells):
         """Mark the given structured cells as rigid obstacle (in addition to earlier ones).

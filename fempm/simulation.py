@@ -14,6 +14,7 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
+import numpy as np
 from mpi4py import MPI
 
 from fempm import linear, recording
@@ -21,7 +22,7 @@ from fempm.bases import BSpline2, Q1
 from fempm.errors import InputError
 from fempm.grid import Grid
 from fempm.implicit import ImplicitOptions, ImplicitSolver
-from fempm.particles import Particles
+from fempm.particles import Particles, sub_cell_centres
 from fempm.recording import Recorder, RecorderOptions
 from fempm.restart import CHECKPOINT, Checkpoints, StopSignals, read_checkpoint, restore
 from fempm.scene import Scene, scene_from_text, to_toml
@@ -54,14 +55,29 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
 def build_material(scene: Scene, comm=MPI.COMM_WORLD) -> tuple:
     """The grid (with its obstacles), the basis and the seeded particles of a scene."""
     d, fluid = scene.domain, scene.fluid
-    grid = (Grid.from_cells(comm, d.lower, d.upper, d.cells) if d.cells
-            else Grid(comm, d.lower, d.upper, d.cell_size))
+    weights = body_weights(scene) if comm.size > 1 else None  # share the water, not the tank
+    grid = (Grid.from_cells(comm, d.lower, d.upper, d.cells, weights) if d.cells
+            else Grid(comm, d.lower, d.upper, d.cell_size, weights))
     grid.block(scene.blocked_cells())
     particles = Particles(grid)
     for body in scene.bodies:
         particles.seed(body.geometry(), per_cell=math.isqrt(body.particles_per_cell), density=fluid.density,
                        velocity=body.velocity)
     return BASES[scene.solver.basis](grid), particles
+
+
+def body_weights(scene: Scene) -> np.ndarray:
+    """Particles each cell starts with (the seeding points inside the bodies), ``(ny, nx)``."""
+    d = scene.domain
+    (nx, ny), h = d.shape, d.h
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy")
+    origins = np.column_stack([d.lower[0] + h * i.ravel(), d.lower[1] + h * j.ravel()])
+    weights = np.zeros(nx * ny)
+    for body in scene.bodies:
+        per_cell = math.isqrt(body.particles_per_cell)
+        inside = body.geometry().contains(sub_cell_centres(origins, h, per_cell))
+        weights += inside.reshape(nx * ny, per_cell**2).sum(axis=1)
+    return weights.reshape(ny, nx)
 
 
 def run_scene(scene: Scene, comm=MPI.COMM_WORLD, overwrite: bool = False, progress: bool | None = None) -> dict:

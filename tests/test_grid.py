@@ -66,3 +66,26 @@ def test_non_square_cells_are_refused(comm, lower, upper, cells, message):
 def test_bad_grid_sizes_are_refused(comm, upper, h, message):
     with pytest.raises(InputError, match=message):
         fempm.Grid(comm, (0.0, 0.0), upper, h)
+
+
+@pytest.mark.mpi
+def test_weighted_partition_shares_a_corner_column_between_ranks(comm):
+    """Water in the lower-left eighth of a tank: weighted bisection gives every rank its share."""
+    weights = np.zeros((40, 40))
+    weights[:20, :10] = 4.0  # the dam break's column, 4 particles per cell
+    grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (0.584, 0.584), (40, 40), weights=weights)
+    mine = weights.ravel()[grid.owned_cells].sum()
+    shares = comm.allgather(mine)
+    assert sum(shares) == 800
+    assert max(shares) - min(shares) <= 4 * 20  # at most one column of the water apart
+    counts = np.zeros(grid.num_cells, dtype=np.int64)
+    counts[grid.owned_cells] = 1
+    assert np.all(comm.allreduce(counts) == 1)
+
+
+def test_bisection_splits_weight_in_proportion():
+    from fempm.grid import bisect
+
+    weights = np.ones((6, 9))
+    part = bisect(weights, 3)
+    assert sorted(np.bincount(part.ravel())) == [18, 18, 18]
