@@ -29,12 +29,16 @@ from fempm.bases import Basis
 from fempm.errors import InputError, ParticleOutsideGridError, SimulationDiverged
 from fempm.formsfile import load_forms
 from fempm.linear import LinearSolver, SolveFailed
+from fempm.matrix import GridMatrix
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space
 from fempm.timing import PhaseTimes
 
-__all__ = ["ImplicitOptions", "ImplicitSolver", "SimulationDiverged"]
+__all__ = ["FLUID_REGION_CELLS", "ImplicitOptions", "ImplicitSolver", "SimulationDiverged", "dilate"]
+
+#: Grids with more cells than this keep matrix rows only near the water (``matrix_region="auto"``).
+FLUID_REGION_CELLS = 100_000
 
 WALLS = ("slip", "no-slip")
 SIDES = ("left", "right", "bottom", "top")
@@ -68,6 +72,11 @@ class ImplicitOptions:
             held at zero: the free-surface condition p = 0 where a function barely
             touches water (splashes, the edge of the surface), whose pressure the few
             particles there leave undetermined (after Kularathna & Soga 2017).
+        matrix_region: ``"grid"``: the matrix has a row for every function of the grid (its
+            sparsity never changes); ``"fluid"``: rows only near the water (the cells
+            holding particles, widened by a margin), rebuilt when the water leaves them,
+            so memory follows the fluid, not the tank; ``"auto"``: fluid above
+            :data:`FLUID_REGION_CELLS` cells.
         pressure_limit: a step whose |p| exceeds this (Pa) is taken as diverged
             (pressure oscillation); default 20 rho g times the grid height.
         forms: file of the weak forms (default ``forms/incompressible.py``).
@@ -88,6 +97,7 @@ class ImplicitOptions:
     pressure_limit: float | None = None
     min_support_fraction: float = 1e-3
     min_pressure_support: float = 0.05
+    matrix_region: str = "auto"
     forms: str | Path = "incompressible"
     petsc_options: dict = field(default_factory=dict)
 
@@ -108,6 +118,8 @@ class ImplicitOptions:
                 raise InputError(f"walls.{side} must be one of {WALLS}, got {kind!r}")
         if not (0 < self.beta <= 0.5 and 0 < self.gamma <= 1):
             raise InputError(f"Newmark needs 0 < beta <= 1/2 and 0 < gamma <= 1, got {self.beta}, {self.gamma}")
+        if self.matrix_region not in ("grid", "fluid", "auto"):
+            raise InputError(f"matrix_region must be 'grid', 'fluid' or 'auto', got {self.matrix_region!r}")
 
     def wall_conditions(self) -> dict[str, str]:
         """The condition on each side, ``{"left": "slip", ...}``."""
@@ -143,6 +155,7 @@ class ImplicitSolver:
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self.max_divergence = 0.0
         self.wall_stops = 0  # particle displacements cut at a wall (see _inside_walls)
+        self.region_rebuilds = 0  # times the matrix's region was widened (matrix_region)
         self.grid_fields = {
             "U": self.U,
             "grid_velocity": GridFunction(self.vector_space, "grid_velocity"),
@@ -163,7 +176,10 @@ class ImplicitSolver:
         unknown = next(c for c, (kind, name) in self.jacobian_form.symbols.used.items() if name == "U")
         expanded = ufl.algorithms.expand_derivatives(self.jacobian_form.ufl_form)
         self.linear = unknown not in expanded.coefficients()  # R affine in U: one Newton step
-        self.J = self.space.create_matrix()
+        self._region = None  # cells with matrix rows (None: all), see matrix_region
+        self._fluid_region = options.matrix_region == "fluid" or (
+            options.matrix_region == "auto" and self.grid.num_cells > FLUID_REGION_CELLS)
+        self.J = self._matrix_for(particles)
         self.linear_solver = LinearSolver(self.comm, "fempm_", options.petsc_options, fields=self.space.fields)
         self.time = 0.0
         self.steps = 0
@@ -198,6 +214,27 @@ class ImplicitSolver:
         self.steps += 1
 
     # -- phases ------------------------------------------------------------------------
+    def _matrix_for(self, particles):
+        """The Jacobian's matrix: on the whole grid, or on the water's cells widened by a margin."""
+        if not self._fluid_region:
+            return self.space.create_matrix()
+        occupied = np.zeros(self.grid.num_cells, dtype=bool)
+        occupied[particles.cell] = True
+        self.comm.Allreduce(MPI.IN_PLACE, occupied, op=MPI.LOR)
+        margin = max(2 * (self.basis.degree + 1), int(np.ceil(0.05 * max(self.grid.nx, self.grid.ny))))
+        self._region = dilate(occupied.reshape(self.grid.ny, self.grid.nx), margin).ravel()
+        return GridMatrix(self.space, self._region).mat
+
+    def _keep_region(self):
+        """Widen the matrix's region if the water has left it (on every rank alike)."""
+        if self._region is None:
+            return
+        outside = bool(np.any(~self._region[self.particles.cell]))
+        if self.comm.allreduce(outside, op=MPI.LOR):
+            self.J = self._matrix_for(self.particles)
+            self._delta = self.J.createVecLeft()
+            self.region_rebuilds += 1
+
     def project(self) -> np.ndarray:
         """P2G: grid velocity and acceleration, smoothed density; returns the free dofs.
 
@@ -205,6 +242,7 @@ class ImplicitSolver:
         counts: ``m_i``, ``v_i = (m v)_i / m_i``, ``a_i = (m a)_i / m_i``,
         ``rho~_i = m_i / int N_i dx`` (eq. 2).
         """
+        self._keep_region()
         p = self.particles
         mass = p["mass"][:, None]
         sums = transfer.particles_to_grid(
@@ -328,6 +366,20 @@ class ImplicitSolver:
             for component in (0, 1) if kind == "no-slip" else (normal,):
                 dofs.append(self.space.wall_dofs("u", component, side[0]))
         return np.unique(np.concatenate(dofs))
+
+
+def dilate(mask: np.ndarray, margin: int) -> np.ndarray:
+    """A 2-D boolean mask grown by ``margin`` cells in every direction (a square neighbourhood)."""
+    out = mask
+    for axis in (0, 1):
+        padded = np.concatenate([np.zeros_like(out.take([0], axis=axis)).repeat(margin, axis=axis), out,
+                                 np.zeros_like(out.take([0], axis=axis)).repeat(margin, axis=axis)], axis=axis)
+        total = np.cumsum(padded, axis=axis, dtype=np.int64)
+        total = np.concatenate([np.zeros_like(total.take([0], axis=axis)), total], axis=axis)
+        n = out.shape[axis]
+        window = total.take(np.arange(n) + 2 * margin + 1, axis=axis) - total.take(np.arange(n), axis=axis)
+        out = window > 0
+    return out
 
 
 def _normalisation(basis: Basis, particles: Particles) -> np.ndarray:

@@ -1,9 +1,12 @@
-"""Matrices with the fixed full-grid sparsity, filled directly in CSR storage.
+"""Matrices with a fixed structured sparsity, filled directly in CSR storage.
 
 Two basis functions couple when their supports share a cell, i.e. when their
 structured indices differ by at most the degree ``k`` in both directions: each
 row has the same stencil of at most ``(2k+1)^2`` functions times ``bs``
-components, whatever the particles do, so the sparsity never changes.
+components, whatever the particles do, so the sparsity never changes. By default
+every function of the grid has its row; a *region* (a set of cells) keeps only
+the rows of functions non-zero in it, the others empty, so a large tank holding a
+little water stores a matrix the size of the water's neighbourhood.
 
 Assembly adds element matrices straight into the CSR value array of this
 rank's *local* rows (owned, then ghost): the position of an entry follows from
@@ -47,8 +50,8 @@ class MatrixLayout:
             ``indptr[bs * f + C] + bs * stencil[f, .] + D``.
     """
 
-    def __init__(self, space: Space):
-        self.space = space
+    def __init__(self, space: Space, region: np.ndarray | None = None):
+        self.space, self.region = space, region
         b, num, bs = space.basis, space.numbering, space.bs
         k = b.degree
         width = 2 * k + 1
@@ -65,6 +68,10 @@ class MatrixLayout:
         np.put_along_axis(rank_in_row, order, np.arange(width * width)[None, :], axis=1)
         self.stencil = np.where(valid, rank_in_row, -1).astype(np.int32)
         count = valid.sum(axis=1)
+        if region is not None:  # rows only for functions non-zero in the region's cells
+            in_region = np.zeros(b.num_functions, dtype=bool)
+            in_region[b.cell_functions(np.flatnonzero(region)).ravel()] = True
+            count = np.where(in_region[f], count, 0)
         sorted_neighbours = np.take_along_axis(neighbour, order, axis=1)
         del neighbour, order, rank_in_row, valid, ni, nj
         self.indptr = np.concatenate([[0], np.cumsum(np.repeat(count * bs, bs))]).astype(PETSc.IntType)
@@ -125,9 +132,9 @@ class GridMatrix:
     ``mat`` is the PETSc matrix (AIJ, block size ``bs``, global numbering).
     """
 
-    def __init__(self, space: Space):
+    def __init__(self, space: Space, region: np.ndarray | None = None):
         self.space = space
-        self.layout = layout(space)
+        self.layout = layout(space) if region is None else MatrixLayout(space, region)
         lay = self.layout
         self.values = np.zeros(len(lay.columns))
         n, big_n = space.num_owned_dofs, space.num_global_dofs

@@ -135,3 +135,21 @@ def test_the_demo_writes_its_files_on_any_number_of_ranks(tmp_path):
         assert ((out / "grid.bp" / "md.idx").stat().st_size - 64) // 64 == 3
         volume = np.loadtxt(out / "volume.csv", delimiter=",", skiprows=2)
         assert volume[0, 1] == 200 and volume[0, 4] == pytest.approx(H)
+
+
+@pytest.mark.mpi
+def test_a_matrix_on_the_water_region_gives_the_same_steps_as_one_on_the_grid():
+    """matrix_region = "fluid" keeps rows only near the water and widens them as it flows."""
+    fronts, rebuilds = {}, {}
+    for region in ("grid", "fluid"):
+        grid = fempm.Grid.from_cells(MPI.COMM_WORLD, (0.0, 0.0), (0.584, 0.584), (40, 40))
+        water = fempm.Particles(grid)
+        water.seed(fempm.Rectangle((0.0, 0.0), (L, H)), per_cell=2, density=RHO)
+        solver = ImplicitSolver(fempm.BSpline2(grid), water, ImplicitOptions(matrix_region=region))
+        front = []
+        for _ in range(150):
+            solver.step()
+            front.append(diagnostics.front_position(water))
+        fronts[region], rebuilds[region] = np.array(front), solver.region_rebuilds
+    assert rebuilds["grid"] == 0 and rebuilds["fluid"] >= 1
+    np.testing.assert_allclose(fronts["fluid"], fronts["grid"], rtol=0, atol=1e-12)
