@@ -304,9 +304,10 @@ def _check_cell_integrals(form: ufl.Form):
         raise InputError(f"fempm forms integrate over cells (dx) only; this form has {sorted(kinds)}")
 
 
-def _constant_array(constants: Mapping, used: dict) -> np.ndarray:
+def _constant_array(constants: Mapping, names: list[str]) -> np.ndarray:
+    """The values of the named constants side by side, in the kernel's order."""
     return np.concatenate(
-        [np.ravel(np.asarray(constants[name], dtype=np.float64)) for name in used.values()]
+        [np.ravel(np.asarray(constants[name], dtype=np.float64)) for name in names]
         or [np.zeros(1)]
     )
 
@@ -362,6 +363,9 @@ class ParticleForm:
         self.order = order
         self.ufl_form = form
         self.symbols = symbols
+        # the kernel reads the constants the form holds, in the form's order: a constant
+        # asked for but left out of the form (a term switched off) has no slot
+        self._constant_names = [symbols.used_constants[c] for c in form.constants()]
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
@@ -456,7 +460,7 @@ class ParticleForm:
         phi = np.ascontiguousarray(phi)
         weight = particles["volume"] / self.space.grid.h**2
         coeffs = self._pack(particles, phi, lfun)
-        consts = _constant_array(self.constants, self.symbols.used_constants)
+        consts = _constant_array(self.constants, self._constant_names)
         return phi, lfun, weight, coeffs, consts
 
     # -- assembly --------------------------------------------------------------------

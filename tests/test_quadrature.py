@@ -34,6 +34,27 @@ def test_gauss_point_particles_reproduce_dolfinx_assembly(comm, Basis, name):
     assert relative_difference(A, gauss.assemble_matrix()) < 1e-12
 
 
+@pytest.mark.parametrize("Basis", BASES)
+def test_a_constant_asked_for_but_left_out_of_the_form_takes_no_slot(comm, Basis):
+    """forms/incompressible.py asks for ``alpha`` and leaves its term out when it is 0: the
+    constants after it must still reach their own slots (they were shifted by one, which put
+    alpha's 0 into the PSPG switch of every run without volume correction)."""
+
+    def form(s):
+        (u, p), (v, q) = s.trial, s.test
+        s.constant("off")  # asked for, not used
+        return (s.constant("k") * ufl.inner(ufl.grad(p), ufl.grad(q)) + s.constant("m") * q * p) * s.dx
+
+    grid = fempm.Grid(comm, (0.0, 0.0), (0.8, 0.6), 0.2)
+    space = fempm.Space(Basis(grid), {"u": 2, "p": 1})
+    degree = 2 * space.basis.degree + 1
+    particles = particles_at_gauss_points(grid, degree)
+    constants = {"off": 0.0, "k": 3.0, "m": 5.0}
+    A = fempm.ParticleForm(form, space, particles, constants=constants).assemble_matrix(particles)
+    reference = fempm.GaussForm(form, space, constants=constants, degree=degree).assemble_matrix()
+    assert relative_difference(A, reference) < 1e-12
+
+
 @pytest.mark.mpi
 @pytest.mark.parametrize("Basis", BASES)
 def test_linear_form_with_grid_function_and_particle_vector(comm, Basis):
