@@ -40,7 +40,7 @@ __all__ = ["FLUID_REGION_CELLS", "ImplicitOptions", "ImplicitSolver", "Simulatio
 #: Grids with more cells than this keep matrix rows only near the water (``matrix_region="auto"``).
 FLUID_REGION_CELLS = 100_000
 
-WALLS = ("slip", "no-slip")
+WALLS = ("slip", "no-slip", "outflow", "open")
 SIDES = ("left", "right", "bottom", "top")
 
 
@@ -59,10 +59,24 @@ class ImplicitOptions:
             0.1: with pure FLIP a Q1 column at rest grew a velocity mode by ~7 % per step
             (0.8 m/s after 1 s); with 5 % PIC the B-spline column kept 1.2e-3 m/s of
             surface motion after 1 s, with 10 % 8e-4 m/s.
-        walls: ``"slip"`` (zero normal velocity) or ``"no-slip"`` on the four walls, or a
-            mapping of side (``left``, ``right``, ``bottom``, ``top``) to one of them
-            (sides not named are slip). Cells blocked by obstacles (``Grid.block``) are
-            no-slip: every function non-zero in one has its velocity held at zero.
+        walls: the condition on the four sides, one of :data:`WALLS` for all, or a mapping
+            of side (``left``, ``right``, ``bottom``, ``top``) to one (sides not named are
+            slip): ``"slip"`` (zero normal velocity), ``"no-slip"`` (zero velocity),
+            ``"outflow"`` (zero tangential velocity, normal traction free: the end of a
+            channel whose flow is fully developed there, ``u_t = 0`` and
+            ``-p + 2 mu du_n/dn = 0``, as plane Poiseuille and Couette flows are) or
+            ``"open"`` (nothing held, traction-free: a free surface on a fixed grid).
+            Material that crosses an outflow or open side leaves the grid (the run stops,
+            unless ``recycle``). Cells blocked by obstacles (``Grid.block``) are no-slip:
+            every function non-zero in one has its velocity held at zero.
+        recycle: with outflow on the left and right, a particle leaving through one of them
+            re-enters through the other at the same height, with all its fields: an endless
+            channel of material on a grid that is not periodic (the ends of a fully
+            developed channel flow, which the outflow condition holds exactly).
+        wall_speeds: tangential speed of moving no-slip walls by side (m/s), along +x on
+            the bottom and top, along +y on the left and right; e.g. ``{"top": 1.0}`` for a
+            lid-driven cavity. The functions a moving wall shares with a side at rest (the
+            corners) stay at rest.
         newton_rtol, newton_max_it: Newton stops when ||R|| <= rtol ||R_0||.
         min_support_fraction: basis functions whose support holds less material than this
             fraction of ``rho * int N_i dx`` are left out of the solve (their dofs held at
@@ -92,6 +106,8 @@ class ImplicitOptions:
     pspg: bool = True
     pic_blend: float = 0.1
     walls: str | dict = "slip"
+    wall_speeds: dict = field(default_factory=dict)
+    recycle: bool = False
     newton_rtol: float = 1e-8
     newton_max_it: int = 8
     pressure_limit: float | None = None
@@ -116,6 +132,15 @@ class ImplicitOptions:
                 raise InputError(f"walls: unknown side {side!r}; the sides are {SIDES}")
             if kind not in WALLS:
                 raise InputError(f"walls.{side} must be one of {WALLS}, got {kind!r}")
+        if self.recycle and {self.wall_conditions()[s] for s in ("left", "right")} != {"outflow"}:
+            raise InputError("recycle needs outflow on the left and the right, got "
+                             f"{self.wall_conditions()['left']!r} and {self.wall_conditions()['right']!r}")
+        for side, speed in self.wall_speeds.items():
+            if self.wall_conditions().get(side) != "no-slip":
+                raise InputError(f"wall_speeds.{side}: only a no-slip side can move, but {side!r} is "
+                                 f"{self.wall_conditions().get(side, 'not a side')!r}")
+            if not np.isfinite(speed):
+                raise InputError(f"wall_speeds.{side} must be a finite speed, got {speed}")
         if not (0 < self.beta <= 0.5 and 0 < self.gamma <= 1):
             raise InputError(f"Newmark needs 0 < beta <= 1/2 and 0 < gamma <= 1, got {self.beta}, {self.gamma}")
         if self.matrix_region not in ("grid", "fluid", "auto"):
@@ -136,23 +161,38 @@ class ImplicitSolver:
         particles: the fluid (fields ``density``, ``velocity``, ``acceleration``);
             a ``pressure`` field is added.
         options: :class:`ImplicitOptions`.
+
+    The step's phases are methods (:meth:`project`, :meth:`solve`, :meth:`update`,
+    :meth:`relocate`) and the forms are compiled by :meth:`_form`, so that a variant
+    on a fixed grid (:class:`fempm.eulerian.EulerianSolver`) shares all the rest.
     """
 
     def __init__(self, basis: Basis, particles: Particles, options: ImplicitOptions | None = None):
-        self.options = options = options or ImplicitOptions()
-        options.check()
-        self.basis, self.particles, self.grid = basis, particles, basis.grid
-        self.comm = self.grid.comm
+        self.particles = particles
         if "pressure" not in particles.fields:
             particles.add_field("pressure")
+        self._setup(basis, options or ImplicitOptions(), convection=0.0)
+        # everything G2P needs, side by side: du, dv, da, v_{n+1}, a_{n+1}, p
+        self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
+        self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
+        self._reference_density = self.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
+        self._integrals = _normalisation(basis, particles)[self.scalar_space.numbering.local_functions]
+        self._compile_forms()
+
+    def _setup(self, basis: Basis, options: ImplicitOptions, convection: float):
+        """What every variant of the step holds: spaces, grid functions, constants, the linear
+        solver, the wall constraints. ``convection`` is the constant of the convective term
+        (0: left out of the forms)."""
+        options.check()
+        self.options = options
+        self.basis, self.grid = basis, basis.grid
+        self.comm = self.grid.comm
         self.space = Space(basis, {"u": 2, "p": 1})
         self.vector_space = Space(basis, {"v": 2})
         self.scalar_space = Space(basis, {"m": 1})
         self.U = GridFunction(self.space, "U")
         self.velocity = GridFunction(self.vector_space, "velocity")  # v_{n+1} of the last step
         self._pressure = GridFunction(self.scalar_space, "pressure")
-        # everything G2P needs, side by side: du, dv, da, v_{n+1}, a_{n+1}, p
-        self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self.max_divergence = 0.0
         self.wall_stops = 0  # particle displacements cut at a wall (see _inside_walls)
         self.region_rebuilds = 0  # times the matrix's region was widened (matrix_region)
@@ -165,21 +205,12 @@ class ImplicitSolver:
         self.constants = {
             "dt": options.dt, "beta": options.beta, "gamma": options.gamma,
             "mu": options.viscosity, "gravity": np.asarray(options.gravity, dtype=float),
-            "alpha": options.alpha, "pspg": float(options.pspg),
+            "alpha": options.alpha, "pspg": float(options.pspg), "convection": float(convection),
         }
-        forms = load_forms(options.forms, required=("residual",))
-        kw = dict(particle_shapes=particles, grid_functions=self.grid_fields, constants=self.constants)
-        self.residual_form = ParticleForm(forms.residual, self.space, **kw)
-        self.jacobian_form = ParticleForm(
-            lambda s: ufl.derivative(forms.residual(s), s.grid("U")), self.space, **kw
-        )
-        unknown = next(c for c, (kind, name) in self.jacobian_form.symbols.used.items() if name == "U")
-        expanded = ufl.algorithms.expand_derivatives(self.jacobian_form.ufl_form)
-        self.linear = unknown not in expanded.coefficients()  # R affine in U: one Newton step
         self._region = None  # cells with matrix rows (None: all), see matrix_region
-        self._fluid_region = options.matrix_region == "fluid" or (
-            options.matrix_region == "auto" and self.grid.num_cells > FLUID_REGION_CELLS)
-        self.J = self._matrix_for(particles)
+        self._fluid_region = self.particles is not None and (options.matrix_region == "fluid" or (
+            options.matrix_region == "auto" and self.grid.num_cells > FLUID_REGION_CELLS))
+        self.J = self._matrix_for(self.particles)
         self.linear_solver = LinearSolver(self.comm, "fempm_", options.petsc_options, fields=self.space.fields)
         self.time = 0.0
         self.steps = 0
@@ -187,25 +218,44 @@ class ImplicitSolver:
         self.timings = PhaseTimes()  # wall seconds by phase
         self.pressure_limit = options.pressure_limit or 20 * 1000.0 * 9.81 * (
             self.grid.upper[1] - self.grid.lower[1])
-        self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
         self._R = self.space.create_vector()
         self._delta = self.J.createVecLeft()
+        held, values = self._walls()
         owned_dofs = self.space.local_to_global[: self.space.num_owned_dofs]
-        self._wall_positions = np.searchsorted(owned_dofs, self._walls())
-        self._reference_density = self.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
-        self._integrals = _normalisation(basis, particles)[self.scalar_space.numbering.local_functions]
+        self._wall_positions = np.searchsorted(owned_dofs, held)
+        self._wall_values = values
+        bs = self.space.bs  # the same dofs in the velocity grid functions (two per function)
+        self._wall_vector_index = self._wall_positions // bs * 2 + self._wall_positions % bs
+        self._closed = not {"outflow", "open"} & set(options.wall_conditions().values())
+        corner = self.space.numbering.local_index[0]  # the lower-left function, where a closed box pins p
+        owns_corner = 0 <= corner < self.space.numbering.num_owned
+        self._pin_position = corner * bs + self.space.field_offset("p") if owns_corner else None
+
+    def _compile_forms(self):
+        """Compile the residual of the forms file and its Jacobian, once (see :meth:`_form`)."""
+        forms = load_forms(self.options.forms, required=("residual",))
+        self.residual_form = self._form(forms.residual)
+        self.jacobian_form = self._form(lambda s: ufl.derivative(forms.residual(s), s.grid("U")))
+        unknown = next(c for c, (kind, name) in self.jacobian_form.symbols.used.items() if name == "U")
+        expanded = ufl.algorithms.expand_derivatives(self.jacobian_form.ufl_form)
+        self.linear = unknown not in expanded.coefficients()  # R affine in U: one Newton step
+
+    def _form(self, builder):
+        """A form integrated at the particles (:class:`ParticleForm`)."""
+        return ParticleForm(builder, self.space, particle_shapes=self.particles, grid_functions=self.grid_fields,
+                            constants=self.constants)
 
     # -- one step ------------------------------------------------------------------------
     def step(self):
-        """Advance the particles by one time step (raises :class:`SimulationDiverged`)."""
+        """Advance by one time step (raises :class:`SimulationDiverged`)."""
         try:
             with self.timings("project"):
                 free = self.project()
             self.solve(free)
             with self.timings("update"):
-                self.update_particles()
+                self.update()
             with self.timings("relocate"):
-                self.particles.relocate()
+                self.relocate()
         except SolveFailed as e:
             raise SimulationDiverged(self.time + self.options.dt, self.steps + 1, str(e)) from None
         except ParticleOutsideGridError as e:
@@ -240,7 +290,8 @@ class ImplicitSolver:
 
         One scatter carries mass, momentum, mass-weighted acceleration and particle
         counts: ``m_i``, ``v_i = (m v)_i / m_i``, ``a_i = (m a)_i / m_i``,
-        ``rho~_i = m_i / int N_i dx`` (eq. 2).
+        ``rho~_i = m_i / int N_i dx`` (eq. 2). At the held wall dofs v_n and a_n are then
+        the wall's (see :meth:`_impose_walls`).
         """
         self._keep_region()
         p = self.particles
@@ -253,6 +304,9 @@ class ImplicitSolver:
         safe = np.where(has_mass, m, 1.0)
         self.grid_fields["grid_velocity"].values[:] = np.where(has_mass, sums[:, 1:3] / safe, 0.0)
         self.grid_fields["grid_acceleration"].values[:] = np.where(has_mass, sums[:, 3:5] / safe, 0.0)
+        self._projected = (self.grid_fields["grid_velocity"].values.copy(),
+                           self.grid_fields["grid_acceleration"].values.copy())  # before the walls
+        self._impose_walls()
         rho = self.grid_fields["smoothed_density"]
         rho.values[:] = m / self._integrals[:, None]
         # functions whose support holds less than a fraction of material are left out; the
@@ -263,18 +317,44 @@ class ImplicitSolver:
         keep = np.repeat(fraction >= self.options.min_support_fraction, self.space.bs)
         enough = sums[:owned, 5] >= -(-self.basis.functions_per_cell // 3)
         keep.reshape(-1, self.space.bs)[:, 2] &= (fraction >= self.options.min_pressure_support) & enough
+        return self._free_dofs(keep)
+
+    def _impose_walls(self):
+        """The grid's v_n and a_n at the held wall dofs: the wall's velocity and zero.
+
+        With ``du = dt v_wall`` held there (:meth:`solve`), Newmark then gives
+        ``v_{n+1} = v_wall`` and ``a_{n+1} = 0`` on the wall: the wall's own motion, at rest
+        or sliding. (With the projected v_n kept, a wall at rest had ``v_{n+1} = -v_n``
+        there under the trapezoidal rule.)
+        """
+        for name, values in (("grid_velocity", self._wall_values), ("grid_acceleration", 0.0)):
+            gf = self.grid_fields[name]
+            gf.vector.array[self._wall_vector_index] = values
+            gf.scatter_forward()
+
+    def _free_dofs(self, keep: np.ndarray) -> np.ndarray:
+        """The owned dofs to solve for: those kept, less the walls; in a closed box whose
+        pressure nothing fixes (no side outflow or open, no pressure held at zero) also less the
+        pressure of the lower-left function, pinned at zero (p is defined up to a constant)."""
         keep[self._wall_positions] = False
+        if self._closed:
+            pressure_held = np.count_nonzero(~keep.reshape(-1, self.space.bs)[:, self.space.field_offset("p")])
+            if self.comm.allreduce(pressure_held) == 0 and self._pin_position is not None:
+                keep[self._pin_position] = False
         self._free_mask = keep
         return self.space.local_to_global[: self.space.num_owned_dofs][keep]
 
     def solve(self, free: np.ndarray):
-        """Newton's method on R(U) = 0 over the free dofs, starting from U = 0.
+        """Newton's method on R(U) = 0 over the free dofs, starting from U = 0 (and the wall
+        displacement ``dt v_wall`` on the held wall dofs, which the corrections leave alone).
 
         When R is affine in U (the shipped forms) one iteration solves it exactly and
         no second residual is assembled.
         """
         U = self.U.vector
         U.array[:] = 0.0
+        U.array[self._wall_positions] = self.options.dt * self._wall_values
+        U.scatter_forward()
         r0 = norm = None
         for iteration in range(self.options.newton_max_it):
             with self.timings("assemble"):
@@ -303,20 +383,30 @@ class ImplicitSolver:
         local = R.array[: self.space.num_owned_dofs][self._free_mask]
         return float(np.sqrt(self.comm.allreduce(np.dot(local, local))))
 
-    def update_particles(self):
-        """G2P: FLIP (or FLIP/PIC blend) velocity and acceleration, x += du, particle pressure.
-
-        FLIP adds the grid's change ``v_{n+1} - v_n`` to the particle velocity
-        (likewise for the acceleration); PIC takes ``v_{n+1}`` itself.
-        """
-        o, p = self.options, self.particles
-        g = self._g2p.values
+    def _newmark(self) -> tuple[np.ndarray, np.ndarray]:
+        """``v_{n+1}`` and ``a_{n+1}`` on the grid from the solved ``du`` (Newmark); keeps v_{n+1}."""
+        o = self.options
         du = self.U.field("u")
         v, a = self.grid_fields["grid_velocity"].values, self.grid_fields["grid_acceleration"].values
         a_new = (du - o.dt * v - o.dt**2 * (0.5 - o.beta) * a) / (o.beta * o.dt**2)
         v_new = v + o.dt * ((1 - o.gamma) * a + o.gamma * a_new)
         self.velocity.values[:] = v_new
-        g[:, 0:2], g[:, 2:4], g[:, 4:6] = du, v_new - v, a_new - a
+        return v_new, a_new
+
+    def update(self):
+        """G2P: FLIP (or FLIP/PIC blend) velocity and acceleration, x += du, particle pressure.
+
+        FLIP adds the grid's change ``v_{n+1} - v_n`` to the particle velocity
+        (likewise for the acceleration), ``v_n`` as projected from the particles: on the
+        held wall dofs the change includes the wall's, so particles along a wall take
+        its velocity (a lid drags them; at a wall at rest they lose their normal velocity).
+        PIC takes ``v_{n+1}`` itself.
+        """
+        o, p = self.options, self.particles
+        g = self._g2p.values
+        v_new, a_new = self._newmark()
+        v, a = self._projected
+        g[:, 0:2], g[:, 2:4], g[:, 4:6] = self.U.field("u"), v_new - v, a_new - a
         g[:, 6:8], g[:, 8:10], g[:, 10] = v_new, a_new, self.U.field("p")[:, 0]
         jets = transfer.grid_jets_to_particles(self._g2p, p, order=1)
         values = jets[:, 0]
@@ -327,7 +417,11 @@ class ImplicitSolver:
         p.fields["x"] = self._inside_walls(p.x + values[:, 0:2])
         divergence = (jets[:, 1, 6] + jets[:, 2, 7]) / self.grid.h
         self.max_divergence = self.comm.allreduce(float(np.abs(divergence).max(initial=0.0)), op=MPI.MAX)
-        peak = self.comm.allreduce(float(np.abs(p["pressure"]).max(initial=0.0)), op=MPI.MAX)
+        self._check_pressure(p["pressure"])
+
+    def _check_pressure(self, pressure: np.ndarray):
+        """Stop (:class:`SolveFailed`) on a pressure that is not finite or beyond the limit."""
+        peak = self.comm.allreduce(float(np.abs(pressure).max(initial=0.0)), op=MPI.MAX)
         if not np.isfinite(peak):
             raise SolveFailed("the pressure is not finite")
         if peak > self.pressure_limit:
@@ -335,15 +429,28 @@ class ImplicitSolver:
                 f"pressure oscillation: |p| reached {peak:.3g} Pa, above the limit {self.pressure_limit:.3g} Pa"
             )
 
+    def relocate(self):
+        """The particles to their new cells and ranks."""
+        self.particles.relocate()
+
     def _inside_walls(self, x: np.ndarray) -> np.ndarray:
-        """Stop at the wall a particle whose displacement would carry it through one.
+        """Stop at the wall a particle whose displacement would carry it through one; with
+        ``recycle``, bring a particle that left through the left or right side in through the
+        other.
 
         The walls are impermeable; the interpolated displacement of a cell next to a wall
         cannot decelerate within the cell, so at large steps or hard impacts it may take a
-        particle a little past the wall. Counted in ``wall_stops``. NaN stays NaN.
+        particle a little past the wall. Counted in ``wall_stops``. NaN stays NaN. Outflow
+        and open sides are no walls: material crossing them leaves the grid.
         """
+        if self.options.recycle:
+            x[:, 0] = self.grid.lower[0] + np.mod(x[:, 0] - self.grid.lower[0], self.grid.upper[0] - self.grid.lower[0])
         margin = 1e-9 * self.grid.h
         low, high = self.grid.lower + margin, self.grid.upper - margin
+        walls = self.options.wall_conditions()
+        impermeable = lambda side: walls[side] in ("slip", "no-slip")  # noqa: E731
+        low = np.where([impermeable("left"), impermeable("bottom")], low, -np.inf)
+        high = np.where([impermeable("right"), impermeable("top")], high, np.inf)
         outside = np.any((x < low) | (x > high), axis=1)
         if np.any(outside):
             self.wall_stops += int(outside.sum())
@@ -357,15 +464,31 @@ class ImplicitSolver:
         return self._pressure
 
     # -- helpers -----------------------------------------------------------------------
-    def _walls(self) -> np.ndarray:
-        """Global numbers of the owned velocity dofs held at zero: on the walls (normal
-        component, or both) and on obstacles."""
-        dofs = [self.space.cell_dofs("u", np.flatnonzero(self.grid.blocked))]
+    def _walls(self) -> tuple[np.ndarray, np.ndarray]:
+        """Global numbers of the owned velocity dofs held (on the walls: the normal component,
+        or both; on obstacles) and the velocity held on each: zero, or a moving wall's speed
+        on its tangential component where no side at rest holds the same dof."""
+        held = [self.space.cell_dofs("u", np.flatnonzero(self.grid.blocked))]
+        moving, speeds = [], []
         for side, kind in self.options.wall_conditions().items():
             normal = 0 if side in ("left", "right") else 1
-            for component in (0, 1) if kind == "no-slip" else (normal,):
-                dofs.append(self.space.wall_dofs("u", component, side[0]))
-        return np.unique(np.concatenate(dofs))
+            components = {"slip": (normal,), "no-slip": (0, 1), "outflow": (1 - normal,), "open": ()}[kind]
+            for component in components:
+                dofs = self.space.wall_dofs("u", component, side[0])
+                if component != normal and side in self.options.wall_speeds:
+                    moving.append(dofs)
+                    speeds.append(np.full(len(dofs), float(self.options.wall_speeds[side])))
+                else:
+                    held.append(dofs)
+        at_rest = np.unique(np.concatenate(held))
+        moving, speeds = (np.concatenate(a) if a else np.zeros(0) for a in (moving, speeds))
+        moving, first = np.unique(moving, return_index=True)  # two moving sides meet: the first named
+        speeds = speeds[first]
+        sliding = ~np.isin(moving, at_rest)
+        dofs = np.concatenate([at_rest, moving[sliding]]).astype(np.int64)
+        values = np.concatenate([np.zeros(len(at_rest)), speeds[sliding]])
+        order = np.argsort(dofs, kind="stable")
+        return dofs[order], values[order]
 
 
 def dilate(mask: np.ndarray, margin: int) -> np.ndarray:

@@ -24,7 +24,9 @@ The same function is compiled for two integration targets:
   (``P^T A_L P``): the FEM reference, and the oracle of the exactness tests.
 
 On the particle target ``s.particle(name)`` is the particle's own value; on the
-Gauss target it is a field at the Gauss points given by a callable of ``x``.
+Gauss target it is a field at the Gauss points given by a number, a callable of ``x``
+or a grid function (read at every assembly: the FEM-only reference's particle
+velocity is the previous step's grid velocity).
 """
 
 from __future__ import annotations
@@ -249,10 +251,15 @@ class _ParticleTarget:
 
 
 class _GaussTarget:
-    """Where ``s.dx`` means Gauss quadrature of a given degree on the grid."""
+    """Where ``s.dx`` means Gauss quadrature of a given degree on the grid.
 
-    def __init__(self, space: Space, degree: int):
+    ``grid_valued`` names the particle fields given by grid functions (their field
+    layouts): those are Lagrange functions, which Gauss quadrature evaluates at its points.
+    """
+
+    def __init__(self, space: Space, degree: int, grid_valued: Mapping[str, dict] | None = None):
         self.grid_space = space
+        self.grid_valued = dict(grid_valued or {})
         self.mesh = space.grid.mesh
         self.degree = degree
         self.dx = ufl.Measure("dx", domain=self.mesh, metadata={"quadrature_degree": degree})
@@ -266,6 +273,8 @@ class _GaussTarget:
         return self._spaces[key]
 
     def particle_coefficient(self, name, shape):
+        if name in self.grid_valued:
+            return dolfinx.fem.Function(self.space(self.grid_valued[name]), name=f"particle:{name}")
         element = basix.ufl.quadrature_element(self.mesh.basix_cell(), value_shape=shape, degree=self.degree)
         return dolfinx.fem.Function(dolfinx.fem.functionspace(self.mesh, element), name=f"particle:{name}")
 
@@ -545,8 +554,9 @@ class GaussForm:
 
     Args:
         builder, space, grid_functions, constants: as for :class:`ParticleForm`.
-        particle_values: value of each per-particle field the form uses, as a
-            callable of the points ``x`` (shape ``(3, n)``) or a number.
+        particle_values: value of each per-particle field the form uses: a number, a
+            callable of the points ``x`` (shape ``(3, n)``), or a :class:`GridFunction`
+            on the form's basis (read at every assembly, like ``grid_functions``).
         degree: degree of the Gauss rule (default exact for products of two
             basis functions and their derivatives with a basis-degree coefficient).
     """
@@ -565,9 +575,9 @@ class GaussForm:
         self.grid_functions = grid_functions if grid_functions is not None else {}
         self.constants = constants if constants is not None else {}
         self.degree = degree if degree is not None else 3 * space.basis.degree + 1
-        target = _GaussTarget(space, self.degree)
-        shapes = {name: np.shape(v(np.zeros((3, 1))))[:-1] if callable(v) else np.shape(v)
-                  for name, v in self.particle_values.items()}
+        grid_valued = {name: v for name, v in self.particle_values.items() if isinstance(v, GridFunction)}
+        target = _GaussTarget(space, self.degree, {name: gf.space.fields for name, gf in grid_valued.items()})
+        shapes = {name: _value_shape(v) for name, v in self.particle_values.items()}
         self.symbols = Symbols(target, space, shapes, self.grid_functions, self.constants)
         self.ufl_form = builder(self.symbols)
         _check_cell_integrals(self.ufl_form)
@@ -575,18 +585,18 @@ class GaussForm:
         self._compiled = dolfinx.fem.form(self.ufl_form, jit_options=_JIT_OPTIONS)
         self._lagrange = target.space(space.fields)
         self.P = extraction_matrix(space, self._lagrange)
-        self._grid_extraction = {
-            coefficient: extraction_matrix(self.grid_functions[name].space, coefficient.function_space)
-            for coefficient, (kind, name) in self.symbols.used.items()
-            if kind == "grid"
-        }
+        self._grid_extraction = {}  # coefficient -> (grid function, its extraction matrix)
+        for coefficient, (kind, name) in self.symbols.used.items():
+            gf = self.grid_functions[name] if kind == "grid" else grid_valued.get(name)
+            if gf is not None:
+                self._grid_extraction[coefficient] = (gf, extraction_matrix(gf.space, coefficient.function_space))
         self._fill_particle_values()
 
     def _fill_particle_values(self):
         for coefficient, (kind, name) in self.symbols.used.items():
-            if kind != "particle":
+            value = self.particle_values.get(name)
+            if kind != "particle" or isinstance(value, GridFunction):
                 continue
-            value = self.particle_values[name]
             if callable(value):
                 coefficient.interpolate(value)
             else:
@@ -594,9 +604,8 @@ class GaussForm:
                 coefficient.x.scatter_forward()
 
     def _update(self):
-        for coefficient, P in self._grid_extraction.items():
-            _, name = self.symbols.used[coefficient]
-            P.mult(self.grid_functions[name].vector.petsc_vec, coefficient.x.petsc_vec)
+        for coefficient, (gf, P) in self._grid_extraction.items():
+            P.mult(gf.vector.petsc_vec, coefficient.x.petsc_vec)
             coefficient.x.scatter_forward()
         for constant, name in self.symbols.used_constants.items():
             constant.value = np.asarray(self.constants[name], dtype=np.float64)
@@ -621,3 +630,10 @@ class GaussForm:
         """The functional by Gauss quadrature over all ranks."""
         self._update()
         return self.space.comm.allreduce(dolfinx.fem.assemble_scalar(self._compiled))
+
+
+def _value_shape(value) -> tuple[int, ...]:
+    """Value shape of a Gauss-target particle field: a number, a callable of ``x``, a grid function."""
+    if isinstance(value, GridFunction):
+        return (value.space.bs,) if value.space.bs > 1 else ()
+    return np.shape(value(np.zeros((3, 1))))[:-1] if callable(value) else np.shape(value)

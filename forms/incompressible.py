@@ -18,14 +18,22 @@ What a form may use (see ``fempm.quadrature.Symbols``):
   ``grid_acceleration`` a_n (the particle values projected to the grid,
   ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2);
 * constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``gravity``
-  (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``pspg`` (1 or 0).
+  (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``pspg`` (1 or 0),
+  ``convection`` (1 on a fixed grid, see :func:`convection`; 0 in the MPM, whose
+  grid moves with the material).
 
 Two measures: ``s.dx`` integrates at the particles; ``s.dx_lumped`` too, but with
 the grid functions taken at the basis function being tested (nodal quadrature,
 row-sum lumping): the inertia over it has the lumped mass matrix of MPM.
 
+The same forms solve the FEM-only reference (``fempm.eulerian.EulerianSolver``): on a
+fixed grid with Gauss quadrature, the particle fields become fields at the Gauss points
+(``density`` constant, ``velocity`` the previous step's grid velocity), ``grid_velocity``
+and ``grid_acceleration`` the previous step's solution, and ``dx_lumped`` is ``dx``
+(consistent mass).
+
 A term whose switch is zero when the form is compiled (``mu`` = 0, ``alpha`` = 0,
-``pspg`` = 0) is left out of the form, so its kernel never computes it: forms are
+``pspg`` = 0, ``convection`` = 0) is left out of the form, so its kernel never computes it: forms are
 compiled once per run and these constants do not change during a run (see
 :func:`switched_on`).
 """
@@ -65,11 +73,28 @@ def pspg_tau(speed, dt, h, nu):
     return ((2 / dt) ** 2 + (2 * speed / h) ** 2 + (4 * nu / h**2) ** 2) ** -0.5
 
 
+def convection(s, v_new):
+    """Convective acceleration of a fixed (Eulerian) grid, linearised by Oseen's rule::
+
+        (v_n . grad) v_{n+1}
+
+    the previous step's velocity ``v_n`` (``grid_velocity``) carries the new one: the
+    step stays linear in the unknowns (semi-implicit; first-order lag in the carrier).
+    A Lagrangian MPM leaves it out: its grid moves with the material for the step, and
+    its particles carry the convection. ``None`` when ``convection`` is 0 (MPM), so the
+    MPM kernels never compute it.
+    """
+    if not switched_on(s.constant("convection")):
+        return None
+    return s.constant("convection") * ufl.dot(ufl.grad(v_new), s.grid("grid_velocity"))
+
+
 # --- the residual -------------------------------------------------------------------
 def momentum(s):
     """Momentum balance, Lagrangian, weak (method.md, "Momentum"; eq. 1, first row)::
 
         int rho (a_{n+1} - g) . w  dx_lumped  +  int 2 mu eps(v_{n+1}) : eps(w) - p div w  dx
+        [ + int rho (v_n . grad) v_{n+1} . w  dx   on a fixed grid, see convection() ]
 
     The inertia is lumped (the M of eq. 1 is the lumped mass matrix ``m_i``) and uses
     the grid fields v_n, a_n, so ``m_i v_i`` is exactly the particles' momentum. A
@@ -88,6 +113,9 @@ def momentum(s):
     a_new = newmark_acceleration(du, v_n, a_n, dt, beta)
     v_new = newmark_velocity(du, v_n, a_n, dt, beta, gamma)
     stress = 2 * mu * ufl.inner(eps(v_new), eps(w)) - p * ufl.div(w) if switched_on(mu) else -p * ufl.div(w)
+    carried = convection(s, v_new)
+    if carried is not None:
+        stress = stress + rho * ufl.inner(carried, w)
     return rho * ufl.inner(a_new - g, w) * s.dx_lumped + stress * s.dx
 
 
@@ -119,6 +147,7 @@ def pspg(s):
     """Pressure-stabilising Petrov-Galerkin term (Tezduyar 1992; eq. 1, K_v^stab and K_p^stab)::
 
         int (tau / rho) grad q . (rho (v_{n+1} - v_n) / dt + grad p - rho g) dx
+        [ + int tau grad q . (v_n . grad) v_{n+1} dx   on a fixed grid, see convection() ]
 
     the momentum residual (without its viscous part, as in method.md eq. 1) tested
     with ``grad q``; it gives the continuity rows a pressure diagonal, so equal-order
@@ -135,8 +164,11 @@ def pspg(s):
     dt, beta, mu = s.constant("dt"), s.constant("beta"), s.constant("mu")
     tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), dt, s.h, mu / rho)
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
-    mean_acceleration = (newmark_velocity(du, v_n, a_n, dt, beta, s.constant("gamma")) - v_n) / dt
-    residual = rho * mean_acceleration + ufl.grad(p) - rho * s.constant("gravity")
+    v_new = newmark_velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
+    residual = rho * (v_new - v_n) / dt + ufl.grad(p) - rho * s.constant("gravity")
+    carried = convection(s, v_new)
+    if carried is not None:
+        residual = residual + rho * carried
     return s.constant("pspg") * tau / rho * ufl.inner(ufl.grad(q), residual) * s.dx
 
 
