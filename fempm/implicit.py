@@ -304,8 +304,6 @@ class ImplicitSolver:
         safe = np.where(has_mass, m, 1.0)
         self.grid_fields["grid_velocity"].values[:] = np.where(has_mass, sums[:, 1:3] / safe, 0.0)
         self.grid_fields["grid_acceleration"].values[:] = np.where(has_mass, sums[:, 3:5] / safe, 0.0)
-        self._projected = (self.grid_fields["grid_velocity"].values.copy(),
-                           self.grid_fields["grid_acceleration"].values.copy())  # before the walls
         self._impose_walls()
         rho = self.grid_fields["smoothed_density"]
         rho.values[:] = m / self._integrals[:, None]
@@ -397,15 +395,14 @@ class ImplicitSolver:
         """G2P: FLIP (or FLIP/PIC blend) velocity and acceleration, x += du, particle pressure.
 
         FLIP adds the grid's change ``v_{n+1} - v_n`` to the particle velocity
-        (likewise for the acceleration), ``v_n`` as projected from the particles: on the
-        held wall dofs the change includes the wall's, so particles along a wall take
-        its velocity (a lid drags them; at a wall at rest they lose their normal velocity).
-        PIC takes ``v_{n+1}`` itself.
+        (likewise for the acceleration), ``v_n`` as the step used it: on the held wall
+        dofs both are the wall's, so the change there is zero (the walls act on the
+        particles through the solve). PIC takes ``v_{n+1}`` itself, the walls' included.
         """
         o, p = self.options, self.particles
         g = self._g2p.values
         v_new, a_new = self._newmark()
-        v, a = self._projected
+        v, a = self.grid_fields["grid_velocity"].values, self.grid_fields["grid_acceleration"].values
         g[:, 0:2], g[:, 2:4], g[:, 4:6] = self.U.field("u"), v_new - v, a_new - a
         g[:, 6:8], g[:, 8:10], g[:, 10] = v_new, a_new, self.U.field("p")[:, 0]
         jets = transfer.grid_jets_to_particles(self._g2p, p, order=1)
