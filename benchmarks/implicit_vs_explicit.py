@@ -53,7 +53,7 @@ import dambreak_explicit  # noqa: E402
 import fempm  # noqa: E402
 from fempm import diagnostics, output  # noqa: E402
 from fempm.explicit import ExplicitOptions, ExplicitSolver  # noqa: E402
-from fempm.errors import SimulationDiverged  # noqa: E402
+from fempm.verification import advance  # noqa: E402
 from fempm.implicit import ImplicitOptions, ImplicitSolver  # noqa: E402
 
 G, L, H, RHO = dambreak.GRAVITY, dambreak.WIDTH, dambreak.HEIGHT, 1000.0
@@ -111,22 +111,6 @@ def say(message: str):
 
 
 # -- simulations ------------------------------------------------------------------------------
-def advance(solver, end_time: float, each_step=None) -> tuple[str, str, float]:
-    """Step to ``end_time`` (or a divergence); returns status, cause and the wall time of the steps."""
-    n = int(round((end_time - solver.time) / solver.options.dt))
-    wall = 0.0
-    try:
-        for _ in range(n):
-            start = time.perf_counter()
-            solver.step()
-            wall += time.perf_counter() - start
-            if each_step:
-                each_step(solver)
-    except SimulationDiverged as e:
-        return "stopped", e.cause, wall
-    return "completed", "", wall
-
-
 def implicit_dambreak(dt: float):
     args, _ = dambreak.parse_arguments(["--dt", repr(dt)])
     return dambreak.build(args)
@@ -149,7 +133,8 @@ def dambreak_run(label: str, scheme: str, solver, window: float, snapshot: Path 
         p_low, p_high = diagnostics.pressure_range(s.particles)
         low, high = min(low, p_low), max(high, p_high)
 
-    run.status, run.cause, run.wall = advance(solver, window, record)
+    stepped = advance(solver, window, record)
+    run.status, run.cause, run.wall = stepped.status, stepped.cause, stepped.wall
     run.time, run.steps, run.pressure = solver.time, solver.steps, (low, high)
     front = np.array(run.front)
     if front[-1, 0] * T_SCALE >= 3.0:
@@ -238,7 +223,8 @@ def column_run(label: str, make_solver, window: float, samples: int = 100) -> di
                             diagnostics.front_position(p, axis=1) / surface0 - 1))
             next_sample += window / samples
 
-    status, cause, wall = advance(solver, window, record)
+    stepped = advance(solver, window, record)
+    status, cause, wall = stepped.status, stepped.cause, stepped.wall
     history = np.array(history)
     late = history[history[:, 0] >= 0.5 * window]
     result = {

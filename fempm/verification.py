@@ -92,20 +92,20 @@ def advance(solver, end_time: float, each_step=None, run: Run | None = None) -> 
     """Step ``solver`` to ``end_time``, calling ``each_step(solver)`` after every step.
 
     A divergence ends the run cleanly (``status = "stopped"``, ``cause`` its diagnosis).
-    The wall time is that of the steps and ``each_step`` calls (set-up excluded); a ``run``
+    The wall time is that of the steps alone (set-up and ``each_step`` excluded); a ``run``
     given carries on accumulating.
     """
     run = run or Run()
     n = int(round((end_time - solver.time) / solver.options.dt))
-    start = time.perf_counter()
     try:
         for _ in range(n):
+            start = time.perf_counter()
             solver.step()
+            run.wall += time.perf_counter() - start
             if each_step:
                 each_step(solver)
     except SimulationDiverged as e:
-        run.status, run.cause = "stopped", str(e)
-    run.wall += time.perf_counter() - start
+        run.status, run.cause = "stopped", e.cause
     run.time, run.steps = solver.time, solver.steps
     return run
 

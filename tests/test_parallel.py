@@ -12,7 +12,7 @@ from mpi4py import MPI
 import fempm
 from fempm.linear import LinearSolver
 
-from helpers import BILINEAR, CONSTANTS
+from helpers import BILINEAR
 
 
 def _stokes_system(comm, Basis):

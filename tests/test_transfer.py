@@ -7,7 +7,7 @@ import ufl
 import fempm
 from fempm import transfer
 
-from helpers import random_particles, to_dense
+from helpers import random_particles
 
 BASES = [fempm.Q1, fempm.BSpline2]
 
