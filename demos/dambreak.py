@@ -194,6 +194,9 @@ def compare_front(folder: Path, summary: dict, comm):
         experiment = load_reference("koshizuka_oka_1996_experiment.csv")
         error = diagnostics.front_error(T, Z, experiment) if T[-1] >= 3.0 else None  # measured over T <= 3
         summary["front_rms_error_vs_koshizuka_oka"] = error
+        if T[-1] >= 3.0:
+            martin_moyce = load_reference("martin_moyce_1952_n2_2_a2.25in.csv")
+            summary["front_rms_error_vs_martin_moyce"] = diagnostics.front_error(T, Z, martin_moyce)
         output.write_json(folder / "summary.json", summary)
         plot_front(folder / "front.png", T, Z, error, summary)
     summary["front_rms_error_vs_koshizuka_oka"] = comm.bcast(error, root=0)
@@ -227,6 +230,30 @@ def plot_front(path, T, Z, error, summary):
     with output.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=130)
     plt.close(fig)
+
+
+# %% convergence and cost (benchmarks/report.py)
+def study(full: bool = False) -> list:
+    """Front error (T <= 3) against Koshizuka-Oka and wall time, against cells across the tank,
+    particles per cell, time step and basis; the Martin-Moyce error in ``extra``."""
+    import tempfile
+
+    from fempm.verification import Measurement
+
+    def one(cells=40, ppc=2, dt=1e-3, basis="bspline"):
+        with tempfile.TemporaryDirectory() as folder:
+            args, _ = parse_arguments(["--end-time", "0.28", "--cells", str(cells), "--ppc", str(ppc), "--dt", str(dt),
+                                       "--basis", basis, "--no-files", "--quiet", "--out", folder])
+            s = run(args)
+        return Measurement("dam break", "MPM", {"bspline": "B-spline", "q1": "Q1"}[basis], cells, dt, ppc,
+                           s["front_rms_error_vs_koshizuka_oka"], s["wall_time_s"], s["status"], s.get("cause") or "",
+                           {"martin_moyce": s.get("front_rms_error_vs_martin_moyce")})
+
+    grids = (20, 40, 80, 160) if full else (20, 40, 80)
+    rows = [one(cells=n, basis=b) for b in ("bspline", "q1") for n in grids]
+    rows += [one(ppc=ppc) for ppc in (1, 3, 4)]
+    rows += [one(dt=dt) for dt in ((5e-3, 2e-3, 5e-4) if full else (5e-3, 2e-3))]
+    return rows
 
 
 def main(argv=None) -> int:

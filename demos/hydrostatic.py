@@ -71,7 +71,8 @@ def solve(method: str, basis: str, cells: int, dt: float, ppc: int = 2) -> Measu
     p = sample(solver.pressure, np.column_stack([np.full_like(y, W / 2), y]))[:, 0]
     exact = RHO * G * (H - y)
     error = float(np.abs(p - exact).max() / (RHO * G * H)) if run.status == "completed" else None
-    extra = {"bottom_error": float(p[0] / (RHO * G * H) - 1), "y": y.tolist(), "pressure": p.tolist()}
+    extra = {"bottom_error": float(p[0] / (RHO * G * H) - 1), "y": y.tolist(), "pressure": p.tolist(),
+             "pic_blend": solver.options.pic_blend}
     if method == "MPM":
         speed = np.linalg.norm(solver.particles["velocity"], axis=1).max(initial=0.0)
         extra["max_speed"] = float(solver.comm.allreduce(speed, op=MPI.MAX))

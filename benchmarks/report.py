@@ -1,0 +1,189 @@
+"""Verification report: every case's error against its reference and wall time, MPM against FEM-only.
+
+Runs the ``study()`` of each verification demo (``demos/hydrostatic.py``, ``poiseuille.py``,
+``couette.py``, ``cavity.py``, ``dambreak.py``) in one process and writes
+``docs/verification.md`` with, per case, the table of runs (method, basis, cells, time step,
+particles per cell, error, wall time of the steps), the observed convergence rates under
+grid refinement, and PNG plots of error against wall time and against cell size
+(in ``docs/verification/``). The raw rows go to ``docs/verification/results.json``.
+
+    python benchmarks/report.py [--full] [--cases poiseuille couette ...] [--doc docs/verification.md]
+
+Default: the short studies (about ten minutes on one core); ``--full`` adds a finer grid
+and time step to each (an hour or more). Run serially: wall times are of one process.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from datetime import datetime, timezone
+from pathlib import Path
+
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "demos"))
+
+import fempm  # noqa: E402,F401  (imports dolfinx_solver before dolfinx and petsc4py)
+from fempm import output  # noqa: E402
+from fempm.verification import Measurement, rates  # noqa: E402
+
+CASES = {  # demo module: what its error measures
+    "hydrostatic": "max |p - rho g d| / (rho g H) on the centre line after 0.2 s",
+    "poiseuille": "max |u - u_exact| / u_max on the centre line (steady: t = 1.5 H^2/nu; start-up: t = 0.1 H^2/nu)",
+    "couette": "max |u - u_exact| / U on the centre line at t = 0.1 H^2/nu",
+    "cavity": "max |u - u_Ghia| / U over both centre lines (Ghia, Ghia & Shin 1982, Re = 100)",
+    "dambreak": "RMS relative front error against Koshizuka & Oka 1996 over T <= 3 (Martin & Moyce beside it)",
+}
+
+
+def run_studies(cases: list[str], full: bool) -> dict[str, list[Measurement]]:
+    """Each case's study, timed; a case whose demo is missing is reported and skipped."""
+    results = {}
+    for case in cases:
+        try:
+            module = importlib.import_module(case)
+        except ModuleNotFoundError:
+            print(f"report: no demos/{case}.py, skipped", flush=True)
+            continue
+        start = time.perf_counter()
+        results[case] = module.study(full=full)
+        print(f"report: {case}: {len(results[case])} runs in {time.perf_counter() - start:.0f} s", flush=True)
+    return results
+
+
+def series(rows: list[Measurement]) -> dict[tuple, list[Measurement]]:
+    """Rows that differ only in the cell count, by (case, method, basis, dt, ppc), sorted by cells."""
+    groups = defaultdict(dict)
+    for r in rows:
+        if r.error is not None:
+            groups[(r.case, r.method, r.basis, r.dt, r.ppc, r.extra.get("pic_blend"))][r.cells] = r
+    return {k: [g[c] for c in sorted(g)] for k, g in groups.items() if len(g) >= 2}
+
+
+# -- the page -----------------------------------------------------------------------------------
+def table(rows: list[Measurement]) -> list[str]:
+    """The runs of one case as a Markdown table."""
+    extras = sorted({k for r in rows for k, v in r.extra.items() if isinstance(v, (int, float)) and k != "pic_blend"})
+    head = ["case", "method", "basis", "cells", "dt", "ppc", "PIC", "error", *extras, "wall (s)", "outcome"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in rows:
+        pic = r.extra.get("pic_blend")
+        cells = [r.case, r.method, r.basis, str(r.cells), f"{r.dt:g}", f"{r.ppc * r.ppc}" if r.ppc else "-",
+                 "-" if pic is None or r.method != "MPM" else f"{pic:g}", fmt(r.error),
+                 *(fmt(r.extra.get(k)) for k in extras), f"{r.wall:.2f}",
+                 r.status if r.status == "completed" else f"{r.status}: {r.cause}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def fmt(x) -> str:
+    return "-" if x is None else f"{x:.2e}"
+
+
+def rate_lines(rows: list[Measurement]) -> list[str]:
+    """Observed orders between successive grids of each series."""
+    lines = []
+    for (case, method, basis, dt, ppc, pic), runs in series(rows).items():
+        cells = [r.cells for r in runs]
+        ppc_text = f", {ppc * ppc} particles per cell" if method == "MPM" else ""
+        if max(r.error for r in runs) < 1e-9:
+            lines.append(f"- {case}, {method}, {basis}, dt = {dt:g}{ppc_text}: exact to round-off on every grid "
+                         f"(largest error {max(r.error for r in runs):.1e})")
+            continue
+        orders = rates([1 / c for c in cells], [r.error for r in runs])
+        lines.append(f"- {case}, {method}, {basis}, dt = {dt:g}{ppc_text}: errors "
+                     + ", ".join(f"{r.error:.2e} ({c})" for r, c in zip(runs, cells))
+                     + "; observed orders " + ", ".join(f"{o:.2f}" for o in orders))
+    return lines
+
+
+def plot_case(path: Path, case: str, rows: list[Measurement]):
+    """Error against wall time (left) and against cell count (right), one marker per method and basis."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(10, 4))
+    styles = {("MPM", "B-spline"): ("o", "tab:blue"), ("MPM", "Q1"): ("s", "tab:orange"),
+              ("FEM-only", "B-spline"): ("^", "tab:green"), ("FEM-only", "Q1"): ("v", "tab:red")}
+    done = [r for r in rows if r.error is not None and r.error > 0]
+    for (method, basis), (marker, colour) in styles.items():
+        mine = [r for r in done if (r.method, r.basis) == (method, basis)]
+        if mine:
+            left.scatter([r.wall for r in mine], [r.error for r in mine], marker=marker, color=colour,
+                         label=f"{method}, {basis}")
+    for (c, method, basis, dt, ppc, pic), runs in series(rows).items():
+        marker, colour = styles[(method, basis)]
+        right.plot([r.cells for r in runs], [r.error for r in runs], marker=marker, color=colour,
+                   label=f"{method}, {basis}, dt {dt:g}" + (f", {ppc * ppc} ppc" if method == "MPM" else ""))
+    left.set(xscale="log", yscale="log", xlabel="wall time of the steps (s)", ylabel="error", title=f"{case}: cost")
+    right.set(xscale="log", yscale="log", xlabel="cells across the length scale", ylabel="error",
+              title=f"{case}: refinement")
+    for ax in (left, right):
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    with output.atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+
+
+def write_page(doc: Path, results: dict[str, list[Measurement]], full: bool, seconds: float):
+    """docs/verification.md, its plots and the raw rows."""
+    figures = doc.with_suffix("")
+    figures.mkdir(parents=True, exist_ok=True)
+    output.write_json(figures / "results.json", {c: [r.as_dict() for r in rows] for c, rows in results.items()})
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.strip()
+    text = [
+        "# Verification: MPM against FEM-only, analytic solutions and experiments",
+        "",
+        f"Generated by `python benchmarks/report.py{' --full' if full else ''}` on "
+        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, fempm {commit or '?'}, "
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores shared with other work, "
+        f"one process; the studies took {seconds:.0f} s. Every number below comes from that run. "
+        "Wall times are of the steps alone (set-up and form compilation excluded) and carry the "
+        "noise of a shared machine.",
+        "",
+        "MPM: the implicit material point method of `fempm.implicit` (particles are the quadrature "
+        "points). FEM-only: the same weak forms (`forms/incompressible.py`) with Gauss quadrature on "
+        "the fixed grid (`fempm.eulerian`), with the convective term `rho (v_n . grad) v_{n+1}` that "
+        "a fixed grid needs. `ppc` counts particles per cell; `PIC` is the MPM's PIC share of the "
+        "velocity update.",
+        "",
+    ]
+    for case, rows in results.items():
+        plot_case(figures / f"{case}.png", case, rows)
+        text += [f"## {case}", "", f"Error: {CASES[case]}.", "", *table(rows), ""]
+        rates_ = rate_lines(rows)
+        if rates_:
+            text += ["Under grid refinement:", "", *rates_, ""]
+        text += [f"![{case}: error against wall time and cell count]({figures.name}/{case}.png)", ""]
+    with output.atomic_path(doc) as tmp:
+        tmp.write_text("\n".join(text))
+
+
+def main(argv=None) -> int:
+    """Run the studies and write the page."""
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--full", action="store_true", help="the complete studies (an hour or more)")
+    parser.add_argument("--cases", nargs="+", choices=tuple(CASES), default=list(CASES), help="which cases")
+    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "verification.md", help="the page to write")
+    args = parser.parse_args(argv)
+    start = time.perf_counter()
+    results = run_studies(args.cases, args.full)
+    write_page(args.doc, results, args.full, time.perf_counter() - start)
+    print(f"report: wrote {args.doc}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
