@@ -91,11 +91,12 @@ class EulerianSolver(ImplicitSolver):
 class _GaussAssembly:
     """A :class:`GaussForm` answering :class:`~fempm.quadrature.ParticleForm`'s assembly calls
     (the particles argument is unused): the vector into the step's ghosted vector, the matrix
-    a new ``P^T A P``."""
+    ``P^T A P`` into its own storage, made at the first call and refilled at the next."""
 
     def __init__(self, form: GaussForm):
         self.form = form
         self.symbols, self.ufl_form = form.symbols, form.ufl_form
+        self._matrix = None
 
     def assemble_vector(self, _particles, out):
         b = self.form.assemble_vector()
@@ -105,4 +106,5 @@ class _GaussAssembly:
         return out
 
     def assemble_matrix(self, _particles, _out=None):
-        return self.form.assemble_matrix()
+        self._matrix = self.form.assemble_matrix(self._matrix)
+        return self._matrix

@@ -590,6 +590,7 @@ class GaussForm:
             gf = self.grid_functions[name] if kind == "grid" else grid_valued.get(name)
             if gf is not None:
                 self._grid_extraction[coefficient] = (gf, extraction_matrix(gf.space, coefficient.function_space))
+        self._lagrange_matrix = None  # A_L of the last assembly, reused with ``out``
         self._fill_particle_values()
 
     def _fill_particle_values(self):
@@ -610,12 +611,20 @@ class GaussForm:
         for constant, name in self.symbols.used_constants.items():
             constant.value = np.asarray(self.constants[name], dtype=np.float64)
 
-    def assemble_matrix(self) -> PETSc.Mat:
-        """``P^T A_L P`` with ``A_L`` DOLFINx's Gauss assembly on the Lagrange space."""
+    def assemble_matrix(self, out: PETSc.Mat | None = None) -> PETSc.Mat:
+        """``P^T A_L P`` with ``A_L`` DOLFINx's Gauss assembly on the Lagrange space.
+
+        ``out``, a matrix this method returned before, is filled again (its sparsity and
+        the Lagrange matrix are reused: a stepped FEM-only run assembles into the same
+        storage every step)."""
         self._update()
-        A_L = dolfinx.fem.petsc.assemble_matrix(self._compiled)
+        if out is None or self._lagrange_matrix is None:
+            self._lagrange_matrix = dolfinx.fem.petsc.create_matrix(self._compiled)
+        A_L = self._lagrange_matrix
+        A_L.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(A_L, self._compiled)
         A_L.assemble()
-        return A_L.PtAP(self.P)
+        return A_L.PtAP(self.P, result=out)
 
     def assemble_vector(self) -> PETSc.Vec:
         """``P^T b_L`` with ``b_L`` DOLFINx's Gauss assembly on the Lagrange space."""
