@@ -79,8 +79,8 @@ class ImplicitOptions:
             corners) stay at rest.
         newton_rtol, newton_max_it: Newton stops when ||R|| <= rtol ||R_0||.
         min_support_fraction: basis functions whose support holds less material than this
-            fraction of ``rho * int N_i dx`` are left out of the solve (their dofs held at
-            zero): they would only add near-singular rows.
+            fraction of ``rho * int N_i dx`` are left out of the solve (held at rest: du, v_n
+            and a_n zero): they would only add near-singular rows.
         min_pressure_support: the pressure of functions with less material than this
             fraction, or fewer particles in their support than functions per cell, is
             held at zero: the free-surface condition p = 0 where a function barely
@@ -291,7 +291,7 @@ class ImplicitSolver:
         One scatter carries mass, momentum, mass-weighted acceleration and particle
         counts: ``m_i``, ``v_i = (m v)_i / m_i``, ``a_i = (m a)_i / m_i``,
         ``rho~_i = m_i / int N_i dx`` (eq. 2). At the held wall dofs v_n and a_n are then
-        the wall's (see :meth:`_impose_walls`).
+        the wall's (see :meth:`_impose_walls`), on the functions left out of the solve zero.
         """
         self._keep_region()
         p = self.particles
@@ -300,18 +300,21 @@ class ImplicitSolver:
             self._p2g.space, p, np.hstack([mass, mass * p["velocity"], mass * p["acceleration"]]),
             counts=True, out=self._p2g).values
         m = sums[:, :1]
-        has_mass = m > 0
-        safe = np.where(has_mass, m, 1.0)
-        self.grid_fields["grid_velocity"].values[:] = np.where(has_mass, sums[:, 1:3] / safe, 0.0)
-        self.grid_fields["grid_acceleration"].values[:] = np.where(has_mass, sums[:, 3:5] / safe, 0.0)
-        self._impose_walls()
         rho = self.grid_fields["smoothed_density"]
         rho.values[:] = m / self._integrals[:, None]
-        # functions whose support holds less than a fraction of material are left out; the
-        # pressure also where a particle fixes at most three numbers (value, gradient) and
-        # there are fewer than a third as many particles as a cell has functions
+        # functions whose support holds less than a fraction of material are left out of the
+        # solve, held at rest: v_n = a_n = 0 there too (with the projected v_n kept, Newmark gave
+        # them v_{n+1} = -v_n and FLIP dragged the particles near them: a lone particle fell at
+        # 0.78 g); the pressure also where a particle fixes at most three numbers (value,
+        # gradient) and there are fewer than a third as many particles as a cell has functions
+        fraction = rho.values / self._reference_density
+        moving = (m > 0) & (fraction >= self.options.min_support_fraction)
+        safe = np.where(moving, m, 1.0)
+        self.grid_fields["grid_velocity"].values[:] = np.where(moving, sums[:, 1:3] / safe, 0.0)
+        self.grid_fields["grid_acceleration"].values[:] = np.where(moving, sums[:, 3:5] / safe, 0.0)
+        self._impose_walls()
         owned = self.scalar_space.numbering.num_owned
-        fraction = rho.values[:owned, 0] / self._reference_density
+        fraction = fraction[:owned, 0]
         keep = np.repeat(fraction >= self.options.min_support_fraction, self.space.bs)
         enough = sums[:owned, 5] >= -(-self.basis.functions_per_cell // 3)
         keep.reshape(-1, self.space.bs)[:, 2] &= (fraction >= self.options.min_pressure_support) & enough
