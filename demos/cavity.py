@@ -31,7 +31,7 @@ run the FEM-only change falls from 9.6e-4 U per L/U at t = 10 L/U to 6.8e-5 U at
 L/U, where the run ends (``--end-time 15``). The MPM's centre lines never settle to that
 degree: its particles, which are its quadrature points, keep rearranging, and its
 instantaneous profile changes by 3 to 4.5 % of U per L/U from t = 9 L/U on, its errors
-against Ghia between 1.2 and 4.4 %. Both methods are therefore measured on the **mean
+against Ghia between 1.2 and 3.5 %. Both methods are therefore measured on the **mean
 profile over the last** ``--window`` **= 5 L/U** (t = 10 to 15 L/U), which moves the
 FEM-only errors by 0.03 % of U from those of its last step (``error_u_final``,
 ``error_v_final`` in ``summary.json``).
@@ -39,13 +39,25 @@ FEM-only errors by 0.03 % of U from those of its last step (``error_u_final``,
 **The measure.** ``error_u = max_i |u(0.5, y_i) - u_Ghia(y_i)| / U`` over Ghia's 17
 points on the vertical centre line, and ``error_v`` likewise for v(x, 0.5) on the
 horizontal one (Ghia's Tables I and II, ``data/reference/cavity``). Ghia's table is itself
-a 129 x 129 finite-difference solution. From 16 to 32 cells the FEM-only B-spline errors
-against it stay at 0.47 to 0.53 % (u) and 0.80 to 0.90 % (v), while the runs agree
-among themselves ever more closely (the 24-cell profile lies within 0.08 % of U of the
-32-cell one): that floor is the distance between the converged solution and the table,
-not the discretisation error of these grids. :func:`study` therefore also gives each
-run's difference from the finest FEM-only B-spline run (``difference_from_finest_fem``),
-whose rates show the discretisation.
+a 129 x 129 finite-difference solution. From 16 to 64 cells the FEM-only B-spline errors
+against it stay at 0.47 to 0.53 % (u) and 0.80 to 0.90 % (v), while the runs agree among
+themselves ever more closely (the 32-cell profile lies within 0.04 % of U of the 64-cell
+one, the 48-cell one within 0.01 %): that floor is the distance between the converged
+solution and the table, not the discretisation error of these grids (Q1, converging from
+the other side, crosses it: 0.13 % in v at 48 cells). :func:`study` therefore also gives
+each run's difference from the finest FEM-only B-spline run
+(``difference_from_finest_fem``), whose rates show the discretisation.
+
+**Convergence** (``--method mpm --cells N``, 2 x 2 particles per cell, U dt / h = 0.5;
+difference from the 64-cell FEM-only B-spline profile): the B-spline MPM is 5.9, 2.9,
+1.6, 1.4 and 1.2 % of U away at 16, 24, 32, 48 and 64 cells, Q1 16.5, 7.2, 3.2, 2.0 and
+2.0 %: about second order up to 32 cells (observed orders 1.7 to 2.8), then slowly (0.3
+and 0.6 for the B-spline, 1.1 and 0 for Q1). Against Ghia, B-spline: 5.6 / 5.8 %
+(u / v) at 16 cells, 1.4 / 0.6 % at 32, 1.3 / 0.5 % at 64. At 32 cells a smaller step does
+not help (U dt / h = 1, 0.5, 0.25: 1.7 / 2.0, 1.4 / 0.6, 2.6 / 2.2 %; ``--dt``): with the
+PIC share fixed per step, more steps smooth more. Nor do more particles than 2 x 2 per
+cell (``--ppc 1, 2, 3, 4``: 4.9 / 4.5, 1.4 / 0.6, 1.6 / 0.6, 1.9 / 1.1 %); 1 per cell leaves
+21 % of the cells empty.
 
 **MPM settings** (measured with ``--method mpm`` and the flag named, 32 cells; errors
 u / v of the mean profile). ``alpha``, the volume correction of method.md eq. (3), stays
@@ -57,7 +69,7 @@ of the cells empty, and the errors are 27 % / 14 %. More correction (``--alpha 0
 1.7 % / 1.5 % with 0.1), and ``--alpha 0.5`` diverged at t = 7.2 L/U with 8.6 times the
 seeded particles in the top-right corner. ``pic_blend`` stays at its default 0.1: PIC
 damps the FLIP noise but every transfer also smooths the velocity, a numerical
-viscosity that grows as h^2/dt, comparable to nu = 0.01 on these grids. Less PIC
+viscosity that scales as h^2/dt (as 2 U h at U dt / h = 0.5). Less PIC
 (``--pic 0``: 1.2 % / 2.2 %, its last step 3.3 % / 9.5 %) is noisier, more is smoother but
 too viscous (``--pic 0.5``: 4.3 % / 3.8 %; ``--pic 1``: 5.2 % / 5.1 %). With the defaults
 the particles stay spread over the whole cavity: 0 to 9 per cell (4 seeded), 0.1 % of
@@ -390,6 +402,10 @@ def study(full: bool = False, comm=MPI.COMM_WORLD, progress: bool = False) -> li
     docstring) and, along the grid series of each method and basis, the observed orders
     from the previous grid, ``rate_vs_ghia`` and ``rate_vs_finest_fem``
     (:func:`fempm.verification.rates`).
+
+    Cost on one core of the shared 2-core machine: the short version 2.7 min of CPU
+    (17 runs); the full one's runs, each measured alone with this demo, step for 24 min
+    together, 11 min of it the two MPM runs at 64 cells.
     """
     grids = (16, 24, 32, 48, 64) if full else (16, 24, 32)
     sweep = 32 if full else 16
