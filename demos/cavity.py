@@ -101,10 +101,9 @@ from mpi4py import MPI
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 from fempm import output
 from fempm.errors import FempmError
-from fempm.eulerian import EulerianSolver
-from fempm.implicit import ImplicitOptions, ImplicitSolver
+from fempm.implicit import ImplicitOptions
 from fempm.progress import Progress
-from fempm.verification import Measurement, Run, advance, max_relative_error, rates, sample
+from fempm.verification import Measurement, Run, advance, filled_solver, max_relative_error, rates, sample
 
 # %% the case
 SIDE = 1.0  # m, the cavity's side L
@@ -157,18 +156,13 @@ def cavity_grid(cells: int, comm) -> fempm.Grid:
     return fempm.Grid.from_cells(comm, (0.0, 0.0), (SIDE, SIDE), (cells, cells))
 
 
-def fem_solver(cells: int, basis: str, dt: float, comm=MPI.COMM_WORLD) -> EulerianSolver:
-    """The FEM-only reference on the cavity, at rest."""
-    return EulerianSolver(BASES[basis](cavity_grid(cells, comm)), cavity_options(dt), density=DENSITY)
-
-
-def mpm_solver(cells: int, basis: str, dt: float, per_cell: int, comm=MPI.COMM_WORLD,
-               alpha: float = ImplicitOptions.alpha, pic: float = ImplicitOptions.pic_blend) -> ImplicitSolver:
-    """The MPM on the cavity: ``per_cell`` x ``per_cell`` particles at rest in every cell."""
+def cavity_solver(method: str, cells: int, basis: str, dt: float, per_cell: int = 2, comm=MPI.COMM_WORLD,
+                  alpha: float = ImplicitOptions.alpha, pic: float = ImplicitOptions.pic_blend):
+    """The cavity at rest: the FEM-only reference, or the MPM with ``per_cell`` x ``per_cell``
+    particles in every cell (:func:`fempm.verification.filled_solver`)."""
     grid = cavity_grid(cells, comm)
-    fluid = fempm.Particles(grid)
-    fluid.seed(fempm.Rectangle((0.0, 0.0), (SIDE, SIDE)), per_cell=per_cell, density=DENSITY)
-    return ImplicitSolver(BASES[basis](grid), fluid, cavity_options(dt, alpha, pic))
+    return filled_solver(method, BASES[basis](grid), cavity_options(dt, alpha, pic), density=DENSITY,
+                         per_cell=per_cell)
 
 
 # %% centre-line velocities: sampled after every step, averaged over the window
@@ -290,12 +284,7 @@ def run_case(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, 
     the last change per L/U (``unsteadiness``), and for the MPM the particles per cell.
     """
     ghia = load_ghia()
-    if method == "MPM":
-        solver = mpm_solver(cells, basis, dt, per_cell, comm, alpha, pic)
-    elif method == "FEM-only":
-        solver = fem_solver(cells, basis, dt, comm)
-    else:
-        raise ValueError(f"method must be 'MPM' or 'FEM-only', got {method!r}")
+    solver = cavity_solver(method, cells, basis, dt, per_cell, comm, alpha, pic)
     lines = CentreLines(ghia, end_time, window, comm, progress)
     run: Run = advance(solver, end_time, lines)
     lines.close()
@@ -309,7 +298,7 @@ def run_case(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, 
     counts = None
     if method == "MPM":
         summary, counts = occupancy(solver.particles, per_cell)
-        extra.update(summary, alpha=alpha, pic_blend=pic, wall_stops=solver.wall_stops)
+        extra.update(summary, alpha=alpha, pic_blend=pic, wall_stops=solver.wall_stops, courant=LID_SPEED * dt * cells / SIDE)
     measurement = Measurement(
         case="cavity", method=method, basis=BASES[basis].name, cells=cells, dt=dt,
         ppc=per_cell**2 if method == "MPM" else 0, error=max(error_u, error_v) if completed else None,

@@ -249,7 +249,7 @@ def study(full: bool = False) -> list:
             s = run(args)
             front = np.loadtxt(Path(folder) / "front.csv", delimiter=",", skiprows=2, ndmin=2)
         history = np.column_stack([front[:, 0] * np.sqrt(2 * GRAVITY / WIDTH), front[:, 1] / WIDTH])
-        return Measurement("dam break", "MPM", {"bspline": "B-spline", "q1": "Q1"}[basis], cells, dt, ppc,
+        return Measurement("dam break", "MPM", {"bspline": "B-spline", "q1": "Q1"}[basis], cells, dt, ppc**2,
                            s["front_rms_error_vs_koshizuka_oka"], s["wall_time_s"], s["status"], s.get("cause") or "",
                            {"martin_moyce": s.get("front_rms_error_vs_martin_moyce"), "pic_blend": args.pic,
                             "history": history})

@@ -76,7 +76,7 @@ def solve(method: str, basis: str, cells: int, dt: float, ppc: int = 2) -> Measu
     if method == "MPM":
         speed = np.linalg.norm(solver.particles["velocity"], axis=1).max(initial=0.0)
         extra["max_speed"] = float(solver.comm.allreduce(speed, op=MPI.MAX))
-    return Measurement("hydrostatic", method, basis, cells, dt, ppc if method == "MPM" else 0, error, run.wall,
+    return Measurement("hydrostatic", method, basis, cells, dt, ppc**2 if method == "MPM" else 0, error, run.wall,
                        run.status, run.cause, extra)
 
 
