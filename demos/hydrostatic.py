@@ -27,7 +27,6 @@ gives the convergence runs of ``benchmarks/report.py``.
 # %% imports
 from __future__ import annotations
 
-import argparse
 import sys
 
 import numpy as np
@@ -35,11 +34,10 @@ from mpi4py import MPI
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 from fempm import output
-from fempm.errors import FempmError
 from fempm.grid import Grid
 from fempm.implicit import ImplicitOptions
 from fempm.particles import Rectangle
-from fempm.verification import BASES, METHODS, Measurement, advance, filled_solver, sample
+from fempm.verification import BASES, METHODS, Measurement, advance, case_arguments, filled_solver, sample
 
 RHO, MU, G = 1000.0, 1.0e-3, 9.81
 W, H = 0.146, 0.292
@@ -94,19 +92,8 @@ def study(full: bool = False) -> list[Measurement]:
 # %% main
 def main(argv=None) -> int:
     """Run both methods on one grid, print their errors, plot pressure against depth."""
-    parser = argparse.ArgumentParser(description="Hydrostatic tank: p = rho g d")
-    parser.add_argument("--cells", type=int, default=20, help="cells across the depth (default 20)")
-    parser.add_argument("--ppc", type=int, default=2, help="MPM particles per cell and direction (default 2)")
-    parser.add_argument("--dt", type=float, default=0.001, help="time step, s (default 0.001)")
-    parser.add_argument("--basis", choices=tuple(BASES), default="B-spline")
-    parser.add_argument("--out", default="results/hydrostatic", help="output folder")
-    args = parser.parse_args(argv)
-    if args.cells < 4 or args.ppc < 1 or not args.dt > 0:
-        parser.error("--cells must be >= 4, --ppc >= 1 and --dt > 0")
-    try:
-        folder = output.prepare_folder(args.out, MPI.COMM_WORLD)
-    except FempmError as e:
-        parser.error(str(e))
+    args, folder = case_arguments(argv, "Hydrostatic tank: p = rho g d", cells=20, dt=0.001, dt_unit="s",
+                                  out="results/hydrostatic")
     rows = [solve(m, args.basis, args.cells, args.dt, args.ppc) for m in METHODS]
     if MPI.COMM_WORLD.rank == 0:
         for r in rows:

@@ -22,8 +22,8 @@ from fempm.grid import Grid
 from fempm.implicit import ImplicitOptions, ImplicitSolver, SimulationDiverged
 from fempm.particles import Particles, Rectangle
 
-__all__ = ["BASES", "METHODS", "Measurement", "Run", "advance", "channel", "filled_solver", "max_relative_error",
-           "profile_demo", "profile_errors", "rates", "sample", "section"]
+__all__ = ["BASES", "METHODS", "Measurement", "Run", "advance", "case_arguments", "channel", "filled_solver",
+           "max_relative_error", "profile_demo", "profile_errors", "rates", "sample", "section"]
 
 BASES: dict[str, type[Basis]] = {"B-spline": BSpline2, "Q1": Q1}
 METHODS = ("MPM", "FEM-only")
@@ -191,20 +191,18 @@ def profile_errors(case: str, solver, times, y: np.ndarray, exact, scale: float,
     return rows
 
 
-def profile_demo(argv, description: str, solve, exact, y: np.ndarray, times, out: str, quantity: str) -> int:
-    """The command line of a profile case (``demos/poiseuille.py``, ``couette.py``): run both methods
-    on one grid with ``solve(method, basis, cells, dt, ppc)`` (rows with ``extra["profile"]``
-    at ``y``, one per time of ``times``), print the errors, write ``errors.json`` and
-    ``profile.png`` (the profiles on ``exact(y, t)``) in ``out``."""
+def case_arguments(argv, description: str, cells: int, dt: float, dt_unit: str, out: str):
+    """The command line every verification demo shares (``--cells --ppc --dt --basis --out``),
+    checked, with its output folder created (all ranks agree); returns the arguments and the folder."""
     import argparse
 
     from fempm import output
     from fempm.errors import FempmError
 
     parser = argparse.ArgumentParser(description=description)
-    parser.add_argument("--cells", type=int, default=16, help="cells across the channel (default 16)")
+    parser.add_argument("--cells", type=int, default=cells, help=f"cells across the case's height (default {cells})")
     parser.add_argument("--ppc", type=int, default=2, help="MPM particles per cell and direction (default 2)")
-    parser.add_argument("--dt", type=float, default=0.001, help="time step in units H^2/nu (default 0.001)")
+    parser.add_argument("--dt", type=float, default=dt, help=f"time step, {dt_unit} (default {dt:g})")
     parser.add_argument("--basis", choices=tuple(BASES), default="B-spline")
     parser.add_argument("--out", default=out, help=f"output folder (default {out})")
     args = parser.parse_args(argv)
@@ -214,6 +212,17 @@ def profile_demo(argv, description: str, solve, exact, y: np.ndarray, times, out
         folder = output.prepare_folder(args.out, MPI.COMM_WORLD)
     except FempmError as e:
         parser.error(str(e))
+    return args, folder
+
+
+def profile_demo(argv, description: str, solve, exact, y: np.ndarray, times, out: str, quantity: str) -> int:
+    """The command line of a profile case (``demos/poiseuille.py``, ``couette.py``): run both methods
+    on one grid with ``solve(method, basis, cells, dt, ppc)`` (rows with ``extra["profile"]``
+    at ``y``, one per time of ``times``), print the errors, write ``errors.json`` and
+    ``profile.png`` (the profiles on ``exact(y, t)``) in ``out``."""
+    from fempm import output
+
+    args, folder = case_arguments(argv, description, cells=16, dt=0.001, dt_unit="H^2/nu", out=out)
     runs = {m: solve(m, args.basis, args.cells, args.dt, args.ppc) for m in METHODS}
     if MPI.COMM_WORLD.rank == 0:
         for r in (r for rows in runs.values() for r in rows):

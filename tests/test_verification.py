@@ -54,3 +54,24 @@ def test_series_solutions_start_at_rest_and_end_at_the_steady_profiles():
     np.testing.assert_allclose(poiseuille.exact(y, 50.0), y * (1 - y) / 2, atol=1e-12)
     assert np.abs(couette.exact(y[:-1], 0.0)).max() < 0.05  # Gibbs at y = H, where u jumps to U
     np.testing.assert_allclose(couette.exact(y, 50.0), y, atol=1e-12)
+
+
+@pytest.mark.mpi
+def test_the_verification_demos_write_their_files(shared_tmp):
+    from mpi4py import MPI
+
+    quick = ["--cells", "8", "--dt", "0.05"]
+    assert hydrostatic.main(["--cells", "8", "--dt", "0.004", "--out", str(shared_tmp / "hydrostatic")]) == 0
+    assert couette.main([*quick, "--out", str(shared_tmp / "couette")]) == 0
+    assert poiseuille.main([*quick, "--out", str(shared_tmp / "poiseuille")]) == 0
+    if MPI.COMM_WORLD.rank == 0:
+        import json
+
+        rows = json.loads((shared_tmp / "hydrostatic" / "errors.json").read_text())
+        assert [r["method"] for r in rows] == ["MPM", "FEM-only"] and rows[1]["error"] < 1e-10
+        assert (shared_tmp / "hydrostatic" / "pressure.png").stat().st_size > 0
+        for case in ("couette", "poiseuille"):
+            runs = json.loads((shared_tmp / case / "errors.json").read_text())
+            steady = runs["FEM-only"][-1]  # the profile at the later time, near its steady state
+            assert steady["status"] == "completed" and steady["error"] < 0.01
+            assert (shared_tmp / case / "profile.png").stat().st_size > 0
