@@ -5,7 +5,26 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-__all__ = ["front_error", "front_position", "occupied_cells", "pressure_range", "surface_height"]
+__all__ = ["front_error", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
+           "surface_height"]
+
+
+def lowest_corner(grid, gravity) -> np.ndarray:
+    """The corner of the grid lowest in the direction of ``gravity`` (least potential ``-g . x``)."""
+    corners = np.array([[x, y] for x in (grid.lower[0], grid.upper[0]) for y in (grid.lower[1], grid.upper[1])])
+    return corners[np.argmax(corners @ np.asarray(gravity, dtype=float))]
+
+
+def mechanical_energy(particles, gravity, datum) -> float:
+    """Kinetic plus potential energy of the material on all ranks::
+
+        E = sum_p m_p (|v_p|^2 / 2 - g . (x_p - datum))
+
+    With ``datum`` the :func:`lowest_corner`, E >= 0; gravity and walls at rest can only
+    take it away (viscosity, the scheme's dissipation)."""
+    v = particles["velocity"]
+    local = particles["mass"] @ (0.5 * np.einsum("ij,ij->i", v, v) - (particles.x - datum) @ np.asarray(gravity))
+    return particles.grid.comm.allreduce(float(local))
 
 
 def front_position(particles, axis: int = 0) -> float:
