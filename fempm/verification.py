@@ -184,7 +184,7 @@ def profile_errors(case: str, solver, times, y: np.ndarray, exact, scale: float,
     for t in times:
         run = advance(solver, t, run=run)
         u = section(solver, y)[:, 0]
-        error = float(np.abs(u - exact(y, t)).max() / scale) if run.status == "completed" else None
+        error = max_relative_error(u, exact(y, t), scale) if run.status == "completed" else None
         rows.append(Measurement(f"{case} t={t:g}", method, basis, cells, solver.options.dt,
                                 per_cell**2 if method == "MPM" else 0, error, run.wall, run.status, run.cause,
                                 {"profile": u.tolist(), "pic_blend": solver.options.pic_blend}))
