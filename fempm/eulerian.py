@@ -56,7 +56,7 @@ class EulerianSolver(ImplicitSolver):
             raise InputError(f"density must be positive, got {density}")
         self.particles = None
         self.density, self._degree = float(density), degree
-        self._setup(basis, replace(options or ImplicitOptions(), alpha=0.0), convection=1.0, density=self.density)
+        self._setup(basis, replace(options or ImplicitOptions(), alpha=0.0), convection=1.0)
         self.acceleration = GridFunction(self.vector_space, "acceleration")
         self._compile_forms()
         if "convection" not in self.residual_form.symbols.used_constants.values():

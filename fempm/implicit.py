@@ -35,20 +35,13 @@ from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space
 from fempm.timing import PhaseTimes
 
-__all__ = ["FLUID_REGION_CELLS", "VISCOUS_PSPG_WEIGHT", "ImplicitOptions", "ImplicitSolver", "SimulationDiverged", "dilate"]
+__all__ = ["FLUID_REGION_CELLS", "ImplicitOptions", "ImplicitSolver", "SimulationDiverged", "dilate"]
 
 #: Grids with more cells than this keep matrix rows only near the water (``matrix_region="auto"``).
 FLUID_REGION_CELLS = 100_000
 
 WALLS = ("slip", "no-slip", "outflow", "open")
 SIDES = ("left", "right", "bottom", "top")
-
-
-#: The PSPG residual takes its viscous part where ``nu dt / h^2`` reaches this (the weight of
-#: the viscous term against the inertia's in tau): a viscous flow (Poiseuille at 2.6, the
-#: 10 Pa s dam break at 0.05) has it; the seed's water (5e-6) would pay 65 % more assembly
-#: (second derivatives) for a term that moved its front error from 8.92 to 8.91 %.
-VISCOUS_PSPG_WEIGHT = 1e-3
 
 
 @dataclass
@@ -190,12 +183,11 @@ class ImplicitSolver:
         self.particles = particles
         if "pressure" not in particles.fields:
             particles.add_field("pressure")
-        reference_density = basis.grid.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
-        self._setup(basis, options or ImplicitOptions(), convection=0.0, density=reference_density)
+        self._setup(basis, options or ImplicitOptions(), convection=0.0)
         # everything G2P needs, side by side: du, dv, da, v_{n+1}, a_{n+1}, p
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
-        self._reference_density = reference_density
+        self._reference_density = self.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
         self._integrals = _normalisation(basis, particles)[self.scalar_space.numbering.local_functions]
         self.impact_pressure = self._impact_pressure()
         self._datum = diagnostics.lowest_corner(self.grid, self.options.gravity)
@@ -204,11 +196,10 @@ class ImplicitSolver:
         self._energy_watch = self._watches_energy()
         self._compile_forms()
 
-    def _setup(self, basis: Basis, options: ImplicitOptions, convection: float, density: float):
+    def _setup(self, basis: Basis, options: ImplicitOptions, convection: float):
         """What every variant of the step holds: spaces, grid functions, constants, the linear
         solver, the wall constraints. ``convection`` is the constant of the convective term
-        (0: left out of the forms); ``density`` the fluid's (the largest), for its kinematic
-        viscosity."""
+        (0: left out of the forms)."""
         options.check()
         self.options = options
         self.basis, self.grid = basis, basis.grid
@@ -232,7 +223,6 @@ class ImplicitSolver:
             "dt": options.dt, "beta": options.beta, "gamma": options.gamma,
             "mu": options.viscosity, "gravity": np.asarray(options.gravity, dtype=float),
             "alpha": options.alpha, "pspg": float(options.pspg), "convection": float(convection),
-            "viscous_pspg": float(options.viscosity * options.dt >= VISCOUS_PSPG_WEIGHT * density * self.grid.h**2),
         }
         self._region = None  # cells with matrix rows (None: all), see matrix_region
         self._fluid_region = self.particles is not None and (options.matrix_region == "fluid" or (

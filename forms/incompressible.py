@@ -20,8 +20,7 @@ What a form may use (see ``fempm.quadrature.Symbols``):
 * constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``gravity``
   (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``pspg`` (1 or 0),
   ``convection`` (1 on a fixed grid, see :func:`convection`; 0 in the MPM, whose
-  grid moves with the material), ``viscous_pspg`` (1 where the viscous part of the PSPG
-  residual weighs in, ``nu dt / h^2 >= 1e-3``, see ``fempm.implicit.VISCOUS_PSPG_WEIGHT``).
+  grid moves with the material).
 
 Two measures: ``s.dx`` integrates at the particles; ``s.dx_lumped`` too, but with
 the grid functions taken at the basis function being tested (nodal quadrature,
@@ -157,9 +156,7 @@ def pspg(s):
     without ``div(2 mu eps)`` steady Poiseuille flow, where viscosity balances the body
     force, was off by 0.15 % (FEM-only, B-spline, h = H/16) and now only by the
     discretisation (see docs/verification.md). The second derivatives are taken cell by
-    cell (C^1 B-splines: exact; Q1: its mixed derivative only), where ``viscous_pspg`` is 1:
-    for the seed's water its weight is 5e-6 and the second derivatives would cost 65 % more
-    assembly. The inertia is the step's mean acceleration
+    cell (C^1 B-splines: exact; Q1: its mixed derivative only). The inertia is the step's mean acceleration
     ``(v_{n+1} - v_n) / dt``: with the trapezoidal rule the end-point ``a_{n+1}``
     alternates in sign from step to step, and fed into the pressure it made the
     pressure in the corner of the dam break grow by a factor -2 per step from 0.13 s.
@@ -174,7 +171,7 @@ def pspg(s):
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     v_new = newmark_velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
     residual = rho * (v_new - v_n) / dt + ufl.grad(p) - rho * s.constant("gravity")
-    if switched_on(mu) and switched_on(s.constant("viscous_pspg")):
+    if switched_on(mu):
         residual = residual - ufl.div(2 * mu * eps(v_new))
     carried = convection(s, v_new)
     if carried is not None:
