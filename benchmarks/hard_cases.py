@@ -23,7 +23,7 @@ Measured on every case, every step, on all ranks (no loop over particles):
   corner, ``sqrt(|v_0|^2 + 2 |g| dz)`` (``speed_ratio``; a jet squeezed out by pressure can
   exceed 1, an eruption exceeds it by far), and the advective CFL ``max |v| dt / h``
   (a particle stopped at a wall keeps its velocity into the wall, which counts in both);
-* ``wall_stops``: displacements cut at a wall (:meth:`fempm.implicit.ImplicitSolver._inside_walls`).
+* ``wall_stops``: displacements cut at a wall (:meth:`fempm.walls.Walls.keep_inside`).
 
 The tests (``tests/hard/test_hard_cases.py``) run :func:`run_case` and assert on these
 numbers; this script prints them as a table and writes ``docs/hard-cases.md``::
@@ -55,7 +55,8 @@ import dambreak  # noqa: E402
 
 import fempm  # noqa: E402
 from fempm import diagnostics, output  # noqa: E402
-from fempm.implicit import ImplicitOptions, ImplicitSolver  # noqa: E402
+from fempm.implicit import ImplicitSolver  # noqa: E402
+from fempm.options import Scheme  # noqa: E402
 from fempm.scene import load_scene, parse_scene  # noqa: E402
 from fempm.simulation import build_solver  # noqa: E402
 from fempm.verification import Run, advance  # noqa: E402
@@ -64,7 +65,7 @@ G = dambreak.GRAVITY
 TANK, H = dambreak.TANK, dambreak.HEIGHT
 CELLS = 40
 h = TANK / CELLS
-SEED_DT = ImplicitOptions.dt  # 1e-3 s
+SEED_DT = Scheme.dt  # 1e-3 s
 FIELDS = ("x", "velocity", "acceleration", "pressure")
 
 
@@ -90,7 +91,7 @@ def loose_particles(x0: np.ndarray, per_cell: int):
         particles = fempm.Particles(grid)
         particles.add_points(x0 if comm.rank == 0 else np.zeros((0, 2)), (h / per_cell) ** 2, density=1000.0,
                              ids=np.arange(len(x0)) if comm.rank == 0 else np.zeros(0, dtype=np.int64))
-        return ImplicitSolver(fempm.BSpline2(grid), particles, ImplicitOptions())
+        return ImplicitSolver(fempm.BSpline2(grid), particles)
     return build
 
 
@@ -181,9 +182,9 @@ class Watch:
     """Takes the measures of a solver's particles after every step (collectively, on all ranks)."""
 
     def __init__(self, solver: ImplicitSolver):
-        self.comm = solver.comm
+        self.comm = solver.grid.comm
         p = solver.particles
-        self.g = np.asarray(solver.options.gravity, dtype=float)
+        self.g = np.asarray(solver.physics.gravity, dtype=float)
         self.x_low = diagnostics.lowest_corner(solver.grid, self.g)
         self.mass0 = self._sum(p["mass"])
         self.cells0 = diagnostics.occupied_cells(p)
@@ -221,13 +222,13 @@ class Watch:
         history = {k: np.asarray(v) for k, v in self.history.items()}
         energy = history["energy"] / history["energy"][0]
         return Outcome(
-            case=case, end_time=end_time, dt=solver.options.dt, run=run, particles=p.global_count(),
+            case=case, end_time=end_time, dt=solver.dt, run=run, particles=p.global_count(),
             finite=self.finite, mass_error=self._sum(p["mass"]) / self.mass0 - 1.0,
             cells_initial=self.cells0, cells_final=diagnostics.occupied_cells(p),
             surface_height=diagnostics.surface_height(p), max_speed=float(history["max_speed"].max()),
-            speed_bound=self.speed_bound, max_cfl=float(history["max_speed"].max()) * solver.options.dt / solver.grid.h,
+            speed_bound=self.speed_bound, max_cfl=float(history["max_speed"].max()) * solver.dt / solver.grid.h,
             energy_max=float(energy.max()), energy_rise=float(np.max(energy - np.minimum.accumulate(energy))),
-            wall_stops=solver.comm.allreduce(solver.wall_stops), history=history, solver=solver,
+            wall_stops=self.comm.allreduce(solver.walls.stops), history=history, solver=solver,
         )
 
 

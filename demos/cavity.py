@@ -101,7 +101,8 @@ from mpi4py import MPI
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 from fempm import output
 from fempm.errors import FempmError
-from fempm.implicit import ImplicitOptions
+from fempm.bases import BASES
+from fempm.options import Physics, Scheme
 from fempm.progress import Progress
 from fempm.verification import Measurement, Run, advance, filled_solver, max_relative_error, rates, sample
 
@@ -115,7 +116,6 @@ WINDOW = 5.0  # s: the profiles are the mean over the last 5 L/U of the run
 HISTORY_INTERVAL = 1.0  # s: history.csv every L/U
 COURANT = 0.5  # the MPM's default step: U dt / h = 0.5
 FEM_DT = 0.1  # s: the FEM-only step (its steady state does not need the MPM's small one)
-BASES = {"bspline": fempm.BSpline2, "q1": fempm.Q1}
 REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference" / "cavity"
 DENSE = np.linspace(0.0, SIDE, 101)  # the centre lines drawn in the figure
 
@@ -145,10 +145,9 @@ def courant_step(cells: int, courant: float = COURANT) -> float:
 
 
 # %% the two solvers
-def cavity_options(dt: float, alpha: float = ImplicitOptions.alpha, pic: float = ImplicitOptions.pic_blend):
-    """The cavity's walls and fluid: all sides no-slip, the top one sliding at U; no gravity."""
-    return ImplicitOptions(dt=dt, viscosity=DENSITY * KINEMATIC_VISCOSITY, gravity=(0.0, 0.0), walls="no-slip",
-                           wall_speeds={"top": LID_SPEED}, alpha=alpha, pic_blend=pic)
+#: The cavity's walls and fluid: all sides no-slip, the top one sliding at U; no gravity.
+PHYSICS = Physics(viscosity=DENSITY * KINEMATIC_VISCOSITY, gravity=(0.0, 0.0), walls="no-slip",
+                  wall_speeds={"top": LID_SPEED})
 
 
 def cavity_grid(cells: int, comm) -> fempm.Grid:
@@ -157,11 +156,11 @@ def cavity_grid(cells: int, comm) -> fempm.Grid:
 
 
 def cavity_solver(method: str, cells: int, basis: str, dt: float, per_cell: int = 2, comm=MPI.COMM_WORLD,
-                  alpha: float = ImplicitOptions.alpha, pic: float = ImplicitOptions.pic_blend):
+                  alpha: float = Scheme.alpha, pic: float = Scheme.pic_blend):
     """The cavity at rest: the FEM-only reference, or the MPM with ``per_cell`` x ``per_cell``
     particles in every cell (:func:`fempm.verification.filled_solver`)."""
     grid = cavity_grid(cells, comm)
-    return filled_solver(method, BASES[basis](grid), cavity_options(dt, alpha, pic), density=DENSITY,
+    return filled_solver(method, BASES[basis](grid), PHYSICS, Scheme(dt=dt, alpha=alpha, pic_blend=pic), density=DENSITY,
                          per_cell=per_cell)
 
 
@@ -196,7 +195,7 @@ class CentreLines:
         return np.concatenate([both[: self.n_u, 0], both[self.n_u:, 1]])
 
     def __call__(self, solver):
-        t, dt = solver.time, solver.options.dt
+        t, dt = solver.time, solver.dt
         in_window = t > self.window_start + 0.5 * dt
         on_record = abs(t / HISTORY_INTERVAL - round(t / HISTORY_INTERVAL)) * HISTORY_INTERVAL < 0.5 * dt
         if in_window or on_record:
@@ -275,7 +274,7 @@ class CavityRun:
 
 
 def run_case(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, end_time: float = END_TIME,
-             window: float = WINDOW, alpha: float = ImplicitOptions.alpha, pic: float = ImplicitOptions.pic_blend,
+             window: float = WINDOW, alpha: float = Scheme.alpha, pic: float = Scheme.pic_blend,
              comm=MPI.COMM_WORLD, progress: bool = False) -> CavityRun:
     """Run ``method`` (``"MPM"`` or ``"FEM-only"``) from rest to ``end_time`` and measure it.
 
@@ -298,7 +297,7 @@ def run_case(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, 
     counts = None
     if method == "MPM":
         summary, counts = occupancy(solver.particles, per_cell)
-        extra.update(summary, alpha=alpha, pic_blend=pic, wall_stops=solver.wall_stops, courant=LID_SPEED * dt * cells / SIDE)
+        extra.update(summary, alpha=alpha, pic_blend=pic, wall_stops=solver.walls.stops, courant=LID_SPEED * dt * cells / SIDE)
     measurement = Measurement(
         case="cavity", method=method, basis=BASES[basis].name, cells=cells, dt=dt,
         ppc=per_cell**2 if method == "MPM" else 0, error=max(error_u, error_v) if completed else None,
@@ -448,8 +447,8 @@ def parse_arguments(argv=None) -> argparse.Namespace:
     parser.add_argument("--window", type=float, default=WINDOW,
                         help=f"the profiles are averaged over the run's last WINDOW (default {WINDOW:g} L/U)")
     parser.add_argument("--method", choices=("both", "mpm", "fem"), default="both", help="which methods run")
-    parser.add_argument("--alpha", type=float, default=ImplicitOptions.alpha, help="MPM volume correction, 0..1")
-    parser.add_argument("--pic", type=float, default=ImplicitOptions.pic_blend, help="MPM PIC share, 0..1")
+    parser.add_argument("--alpha", type=float, default=Scheme.alpha, help="MPM volume correction, 0..1")
+    parser.add_argument("--pic", type=float, default=Scheme.pic_blend, help="MPM PIC share, 0..1")
     parser.add_argument("--out", type=Path, default=Path("results/cavity"), help="output folder")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
     args = parser.parse_args(argv)

@@ -20,7 +20,7 @@ from linear (u(H/2) = 0.30 U), and at t = 1 H^2/nu (steady to 5e-5).
 
 Run (``mpirun -n 2`` works the same)::
 
-    python demos/couette.py [--cells 16] [--ppc 2] [--dt 0.001] [--basis B-spline|Q1] [--out results/couette]
+    python demos/couette.py [--cells 16] [--ppc 2] [--dt 0.001] [--basis bspline|q1] [--out results/couette]
 
 It writes ``profile.png`` and ``errors.json``; :func:`study` gives the convergence runs of
 ``benchmarks/report.py``.
@@ -34,7 +34,8 @@ import sys
 import numpy as np
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
-from fempm.verification import BASES, METHODS, Measurement, channel, profile_demo, profile_errors
+from fempm.bases import BASES
+from fempm.verification import METHODS, Measurement, channel, profile_demo, profile_errors
 
 H, NU, U = 1.0, 1.0, 1.0
 TRANSIENT, STEADY = 0.1 * H**2 / NU, 1.0 * H**2 / NU
@@ -65,8 +66,8 @@ def study(full: bool = False) -> list[Measurement]:
     grids = (8, 16, 32, 64) if full else (8, 16, 32)
     rows = [r for m in METHODS for b in BASES for n in grids for r in solve(m, b, n, 0.00025, times=(TRANSIENT,))]
     steps = (0.004, 0.002, 0.001, 0.0005) if full else (0.004, 0.002, 0.001)
-    rows += [r for m in METHODS for dt in steps for r in solve(m, "B-spline", 32, dt, times=(TRANSIENT,))]
-    rows += [r for ppc in (1, 2, 3, 4) for r in solve("MPM", "B-spline", 16, 0.001, ppc, times=(TRANSIENT,))]
+    rows += [r for m in METHODS for dt in steps for r in solve(m, "bspline", 32, dt, times=(TRANSIENT,))]
+    rows += [r for ppc in (1, 2, 3, 4) for r in solve("MPM", "bspline", 16, 0.001, ppc, times=(TRANSIENT,))]
     return rows
 
 

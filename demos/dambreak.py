@@ -47,23 +47,18 @@ import numpy as np
 from mpi4py import MPI
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
-from fempm import diagnostics, output, recording, simulation
+from fempm import output, recording, references, simulation
 from fempm.errors import FempmError
-from fempm.implicit import ImplicitOptions
+from fempm.bases import BASES
+from fempm.options import Scheme
 from fempm.recording import Recorder, RecorderOptions
 from fempm.scene import Scene, load_scene, parse_scene
 
-REFERENCE = Path(__file__).resolve().parents[1] / "data" / "reference" / "dambreak"
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
 _SHIPPED = load_scene(SCENE)
 TANK = _SHIPPED.domain.upper[0]  # 0.584 m
 WIDTH, HEIGHT = _SHIPPED.bodies[0].upper  # the column, L = 0.146 m and 2L
 GRAVITY = -_SHIPPED.gravity[1]
-
-
-def load_reference(name: str) -> np.ndarray:
-    """A reference front history (T, Z) from data/reference/dambreak."""
-    return np.loadtxt(REFERENCE / name, delimiter=",", skiprows=2)
 
 
 # %% command line
@@ -98,11 +93,11 @@ def check_common(parser: argparse.ArgumentParser, args: argparse.Namespace):
 
 def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
     """The demo's flags; unknown ``-fempm_...`` flags (with their values) go to PETSc."""
-    parser = common_arguments(__doc__, "results/dambreak", "incompressible", ImplicitOptions.pic_blend)
+    parser = common_arguments(__doc__, "results/dambreak", "incompressible", Scheme.pic_blend)
     parser.add_argument("--dt", type=float, default=1.0e-3, help="time step, s (default 1e-3)")
     parser.add_argument("--no-pspg", action="store_true", help="switch PSPG off (the run then fails)")
     parser.add_argument("--no-volume-correction", action="store_true", help="alpha = 0 (method.md eq. 3)")
-    parser.add_argument("--alpha", type=float, default=ImplicitOptions.alpha, help="volume correction")
+    parser.add_argument("--alpha", type=float, default=Scheme.alpha, help="volume correction")
     args, rest = parser.parse_known_args(argv)
     bad = [a for k, a in enumerate(rest) if not a.startswith("-fempm_") and not (k and rest[k - 1].startswith("-fempm_"))]
     if bad:
@@ -176,7 +171,7 @@ def record(solver, args, extra: dict, comm=MPI.COMM_WORLD) -> dict:
     recorder = Recorder(solver, RecorderOptions(
         folder=Path(o.folder), particles_interval=o.particles_interval, grid_interval=o.grid_interval,
         snapshot_times=o.snapshots, final_snapshot=o.final_snapshot, pressure_scale=o.pressure_scale,
-        extra={"dt": solver.options.dt, **extra},
+        extra={"dt": solver.dt, **extra},
     ))
     summary = recording.run(solver, args.end_time, recorder, progress=not args.quiet)
     compare_front(recorder.folder, summary, comm)
@@ -191,12 +186,13 @@ def compare_front(folder: Path, summary: dict, comm):
         front = np.loadtxt(folder / "front.csv", delimiter=",", skiprows=2, ndmin=2)
         T = front[:, 0] * np.sqrt(2 * GRAVITY / WIDTH)
         Z = front[:, 1] / WIDTH
-        experiment = load_reference("koshizuka_oka_1996_experiment.csv")
-        error = diagnostics.front_error(T, Z, experiment) if T[-1] >= 3.0 else None  # measured over T <= 3
+        history = np.column_stack([T, Z])
+        experiment = references.dambreak_front("koshizuka_oka_1996_experiment")
+        error = references.front_difference(history, experiment, T_min=0.0) if T[-1] >= 3.0 else None
         summary["front_rms_error_vs_koshizuka_oka"] = error
         if T[-1] >= 3.0:
-            martin_moyce = load_reference("martin_moyce_1952_n2_2_a2.25in.csv")
-            summary["front_rms_error_vs_martin_moyce"] = diagnostics.front_error(T, Z, martin_moyce)
+            martin_moyce = references.dambreak_front("martin_moyce_1952_n2_2_a2.25in")
+            summary["front_rms_error_vs_martin_moyce"] = references.front_difference(history, martin_moyce, T_min=0.0)
         output.write_json(folder / "summary.json", summary)
         plot_front(folder / "front.png", T, Z, error, summary)
     summary["front_rms_error_vs_koshizuka_oka"] = comm.bcast(error, root=0)
@@ -212,11 +208,11 @@ def plot_front(path, T, Z, error, summary):
     fig, ax = plt.subplots(figsize=(6, 4.5))
     label = f"fempm, {summary['scheme']} ({summary['basis']}, {summary['particles']} particles)"
     ax.plot(T, Z, "-", color="tab:blue", label=label)
-    ko = load_reference("koshizuka_oka_1996_experiment.csv")
+    ko = references.dambreak_front("koshizuka_oka_1996_experiment")
     ax.plot(ko[:, 0], ko[:, 1], "o", color="black", label="Koshizuka & Oka 1996, experiment")
-    for name, marker, label in (("martin_moyce_1952_n2_2_a2.25in.csv", "s", "Martin & Moyce 1952, a = 2.25 in"),
-                                ("martin_moyce_1952_n2_2_a1.125in.csv", "^", "Martin & Moyce 1952, a = 1.125 in")):
-        mm = load_reference(name)
+    for name, marker, label in (("martin_moyce_1952_n2_2_a2.25in", "s", "Martin & Moyce 1952, a = 2.25 in"),
+                                ("martin_moyce_1952_n2_2_a1.125in", "^", "Martin & Moyce 1952, a = 1.125 in")):
+        mm = references.dambreak_front(name)
         ax.plot(mm[:, 0], mm[:, 1], marker, mfc="none", color="tab:gray", label=label)
     ax.set_xlim(0, 4.0)  # the front reaches the far wall (Z = 4) at T ~ 3.1
     ax.set_ylim(1, 4.2)
@@ -249,7 +245,7 @@ def study(full: bool = False) -> list:
             s = run(args)
             front = np.loadtxt(Path(folder) / "front.csv", delimiter=",", skiprows=2, ndmin=2)
         history = np.column_stack([front[:, 0] * np.sqrt(2 * GRAVITY / WIDTH), front[:, 1] / WIDTH])
-        return Measurement("dam break", "MPM", {"bspline": "B-spline", "q1": "Q1"}[basis], cells, dt, ppc**2,
+        return Measurement("dam break", "MPM", BASES[basis].name, cells, dt, ppc**2,
                            s["front_rms_error_vs_koshizuka_oka"], s["wall_time_s"], s["status"], s.get("cause") or "",
                            {"martin_moyce": s.get("front_rms_error_vs_martin_moyce"), "pic_blend": args.pic,
                             "history": history})
@@ -262,7 +258,7 @@ def study(full: bool = False) -> list:
     for r in rows:
         history = r.extra.pop("history")
         if r.status == "completed" and r is not rows[len(grids) - 1]:
-            r.extra["vs_finest"] = diagnostics.front_error(history[:, 0], history[:, 1], finest)
+            r.extra["vs_finest"] = references.front_difference(history, finest, T_min=0.0)
     return rows
 
 

@@ -49,7 +49,8 @@ from math import sqrt
 from mpi4py import MPI
 
 from dambreak import GRAVITY, HEIGHT, check_common, common_arguments, record, report, water_column
-from fempm.explicit import DEFAULT_CFL, ExplicitOptions, ExplicitSolver
+from fempm.explicit import DEFAULT_CFL, ExplicitScheme, ExplicitSolver
+from fempm.options import Physics
 
 #: 10 times the largest flow speed of the collapse, sqrt(2 g H) (the column's free fall).
 AUTO_SOUND_SPEED = 10 * sqrt(2 * GRAVITY * HEIGHT)
@@ -58,7 +59,7 @@ AUTO_SOUND_SPEED = 10 * sqrt(2 * GRAVITY * HEIGHT)
 # %% command line
 def parse_arguments(argv=None):
     """The demo's flags (those of the implicit demo without its stabilisations, plus the fluid's)."""
-    parser = common_arguments(__doc__, "results/dambreak_explicit", "weakly_compressible", ExplicitOptions.pic_blend)
+    parser = common_arguments(__doc__, "results/dambreak_explicit", "weakly_compressible", ExplicitScheme.pic_blend)
     parser.add_argument("--bulk-modulus", type=float, default=2.0e9, help="K of the water, Pa (default 2e9)")
     parser.add_argument("--sound-speed", default=None,
                         help="artificial sound speed c0, m/s, instead of K; "
@@ -80,12 +81,10 @@ def parse_arguments(argv=None):
 # %% set-up: the implicit demo's tank and column, the explicit solver
 def build(args, comm=MPI.COMM_WORLD) -> ExplicitSolver:
     """The tank, the water column and the explicit solver of the given flags."""
-    options = ExplicitOptions(
-        dt=args.dt, cfl=args.cfl, bulk_modulus=args.bulk_modulus, sound_speed=args.sound_speed,
-        max_speed=sqrt(2 * GRAVITY * HEIGHT), viscosity=args.viscosity, gravity=(0.0, -GRAVITY),
-        pic_blend=args.pic, walls=args.walls, forms=args.forms,
-    )
-    return ExplicitSolver(*water_column(args, comm), options)
+    physics = Physics(viscosity=args.viscosity, gravity=(0.0, -GRAVITY), walls=args.walls)
+    scheme = ExplicitScheme(dt=args.dt, cfl=args.cfl, bulk_modulus=args.bulk_modulus, sound_speed=args.sound_speed,
+                            max_speed=sqrt(2 * GRAVITY * HEIGHT), pic_blend=args.pic, forms=args.forms)
+    return ExplicitSolver(*water_column(args, comm), physics, scheme)
 
 
 # %% the run: step, record, compare the front, write

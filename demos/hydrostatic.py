@@ -35,9 +35,10 @@ from mpi4py import MPI
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 from fempm import output
 from fempm.grid import Grid
-from fempm.implicit import ImplicitOptions
+from fempm.bases import BASES
+from fempm.options import Physics, Scheme
 from fempm.particles import Rectangle
-from fempm.verification import BASES, METHODS, Measurement, advance, case_arguments, filled_solver, sample
+from fempm.verification import METHODS, Measurement, advance, case_arguments, filled_solver, sample
 
 RHO, MU, G = 1000.0, 1.0e-3, 9.81
 W, H = 0.146, 0.292
@@ -50,8 +51,8 @@ def tank(method: str, basis: str, cells: int, dt: float, ppc: int = 2, comm=MPI.
     top = 2 * H if method == "MPM" else H
     grid = Grid.from_cells(comm, (0.0, 0.0), (W, top), (max(cells // 2, 2), cells * round(top / H)))
     walls = {"left": "slip", "right": "slip", "bottom": "slip", "top": "slip" if method == "MPM" else "open"}
-    options = ImplicitOptions(dt=dt, viscosity=MU, gravity=(0.0, -G), walls=walls)
-    return filled_solver(method, BASES[basis](grid), options, density=RHO, per_cell=ppc,
+    physics = Physics(viscosity=MU, gravity=(0.0, -G), walls=walls)
+    return filled_solver(method, BASES[basis](grid), physics, Scheme(dt=dt), density=RHO, per_cell=ppc,
                          body=Rectangle((0.0, 0.0), (W, H)))
 
 
@@ -70,11 +71,11 @@ def solve(method: str, basis: str, cells: int, dt: float, ppc: int = 2) -> Measu
     exact = RHO * G * (H - y)
     error = float(np.abs(p - exact).max() / (RHO * G * H)) if run.status == "completed" else None
     extra = {"bottom_error": float(p[0] / (RHO * G * H) - 1), "y": y.tolist(), "pressure": p.tolist(),
-             "pic_blend": solver.options.pic_blend}
+             "pic_blend": solver.scheme.pic_blend}
     if method == "MPM":
         speed = np.linalg.norm(solver.particles["velocity"], axis=1).max(initial=0.0)
-        extra["max_speed"] = float(solver.comm.allreduce(speed, op=MPI.MAX))
-    return Measurement("hydrostatic", method, basis, cells, dt, ppc**2 if method == "MPM" else 0, error, run.wall,
+        extra["max_speed"] = float(solver.grid.comm.allreduce(speed, op=MPI.MAX))
+    return Measurement("hydrostatic", method, BASES[basis].name, cells, dt, ppc**2 if method == "MPM" else 0, error, run.wall,
                        run.status, run.cause, extra)
 
 
@@ -84,8 +85,8 @@ def study(full: bool = False) -> list[Measurement]:
     and time step."""
     grids = (10, 20, 40, 80) if full else (10, 20, 40)
     rows = [solve(m, b, n, 0.001) for m in METHODS for b in BASES for n in grids]
-    rows += [solve("MPM", "B-spline", 20, 0.001, ppc) for ppc in (1, 2, 3, 4)]
-    rows += [solve("MPM", "B-spline", 20, dt) for dt in (0.004, 0.002, 0.001, 0.0005)[: 4 if full else 3]]
+    rows += [solve("MPM", "bspline", 20, 0.001, ppc) for ppc in (1, 2, 3, 4)]
+    rows += [solve("MPM", "bspline", 20, dt) for dt in (0.004, 0.002, 0.001, 0.0005)[: 4 if full else 3]]
     return rows
 
 

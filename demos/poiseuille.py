@@ -22,7 +22,7 @@ the max over the vertical centre line of ``|u - u_exact| / u_max`` with
 
 Run (``mpirun -n 2`` works the same)::
 
-    python demos/poiseuille.py [--cells 16] [--ppc 2] [--basis B-spline|Q1] [--out results/poiseuille]
+    python demos/poiseuille.py [--cells 16] [--ppc 2] [--basis bspline|q1] [--out results/poiseuille]
 
 It writes ``profile.png`` (MPM and FEM-only profiles on the analytic ones) and
 ``errors.json``. :func:`study` gives the convergence runs of ``benchmarks/report.py``.
@@ -36,7 +36,8 @@ import sys
 import numpy as np
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
-from fempm.verification import BASES, METHODS, Measurement, channel, profile_demo, profile_errors
+from fempm.bases import BASES
+from fempm.verification import METHODS, Measurement, channel, profile_demo, profile_errors
 
 H, NU, G = 1.0, 1.0, 1.0
 U_MAX = G * H**2 / (8 * NU)
@@ -66,10 +67,10 @@ def study(full: bool = False) -> list[Measurement]:
     and the MPM's PIC share (steady runs at dt = 0.01 H^2/nu; time steps at t = 0.1 H^2/nu)."""
     grids = (8, 16, 32, 64) if full else (8, 16, 32)
     rows = [r for m in METHODS for b in BASES for n in grids for r in solve(m, b, n, 0.01, times=(STEADY,))]
-    rows += [r for ppc in (1, 2, 3, 4) for r in solve("MPM", "B-spline", 16, 0.01, ppc, times=(STEADY,))]
+    rows += [r for ppc in (1, 2, 3, 4) for r in solve("MPM", "bspline", 16, 0.01, ppc, times=(STEADY,))]
     steps = (0.01, 0.005, 0.0025, 0.00125) if full else (0.01, 0.005, 0.0025)
-    rows += [r for m in METHODS for dt in steps for r in solve(m, "B-spline", 16, dt, times=(TRANSIENT,))]
-    rows += [r for pic in (0.0, 0.1) for dt in (0.01, 0.001) for r in solve("MPM", "B-spline", 16, dt, times=(STEADY,),
+    rows += [r for m in METHODS for dt in steps for r in solve(m, "bspline", 16, dt, times=(TRANSIENT,))]
+    rows += [r for pic in (0.0, 0.1) for dt in (0.01, 0.001) for r in solve("MPM", "bspline", 16, dt, times=(STEADY,),
                                                                           pic_blend=pic)]
     return rows
 

@@ -25,7 +25,7 @@ import numpy as np
 
 from fempm.grid import Grid
 
-__all__ = ["Basis", "BSpline2", "Q1", "jet_indices"]
+__all__ = ["BASES", "Basis", "BSpline2", "Q1", "jet_indices"]
 
 
 def jet_indices(order: int) -> list[tuple[int, int]]:
@@ -219,3 +219,7 @@ class BSpline2(Basis):
         if n > 5:
             c[3 : n - 2] = c[2]
         return c
+
+
+#: The bases by the name scenes and command lines use (each class's ``name`` is its label in tables).
+BASES: dict[str, type[Basis]] = {"bspline": BSpline2, "q1": Q1}

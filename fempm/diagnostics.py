@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-__all__ = ["front_error", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
+__all__ = ["front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
            "surface_height"]
 
 
@@ -62,17 +62,3 @@ def pressure_range(particles) -> tuple[float, float]:
     comm = particles.grid.comm
     return (comm.allreduce(float(np.min(p, initial=np.inf)), op=MPI.MIN),
             comm.allreduce(float(np.max(p, initial=-np.inf)), op=MPI.MAX))
-
-
-def front_error(T: np.ndarray, Z: np.ndarray, reference: np.ndarray, T_max: float = 3.0) -> float:
-    """RMS relative error of a front history Z(T) against reference points, over 0 < T <= T_max.
-
-    The history is interpolated linearly at the reference times; reference points
-    beyond the end of the history are left out.
-    """
-    T_ref, Z_ref = reference[:, 0], reference[:, 1]
-    use = (T_ref > 0) & (T_ref <= T_max) & (T_ref <= T[-1])
-    if not np.any(use):
-        raise ValueError("the front history does not reach any reference time")
-    Z_sim = np.interp(T_ref[use], T, Z)
-    return float(np.sqrt(np.mean(((Z_sim - Z_ref[use]) / Z_ref[use]) ** 2)))

@@ -1,91 +1,94 @@
 """The FEM-only reference: the step's forms on a fixed grid with Gauss quadrature, no particles.
 
-:class:`EulerianSolver` is :class:`~fempm.implicit.ImplicitSolver` with three phases
-changed and the rest shared (walls, moving walls, pressure pin, Newton, linear solver,
-failure diagnosis)::
+:class:`EulerianSolver` is built from the same parts as the MPM step
+(:class:`~fempm.system.GridSystem`: unknowns, walls, moving walls, pressure pin, Newton, linear
+solver; the same forms file), with its own phases::
 
     project   v_n, a_n <- the previous step's grid solution (the walls' own on held dofs)
-    assemble  R(U) and dR/dU of the same forms file by DOLFINx with Gauss quadrature on
-              the Lagrange space containing the basis, restricted by extraction (P^T A P)
-    solve     as the MPM: Newton (one iteration for the shipped forms), MUMPS LU
+    solve     R(U) and dR/dU by DOLFINx with Gauss quadrature on the Lagrange space containing
+              the basis, restricted by extraction (P^T A P); Newton as the MPM
     update    v_{n+1}, a_{n+1} by Newmark, kept for the next step
-    relocate  nothing moves
 
-On the fixed grid the forms see: ``density`` a constant, the particle ``velocity`` (the
-PSPG parameter's speed) and ``acceleration`` the previous step's grid fields at the
-Gauss points, ``dx_lumped`` the ordinary ``dx`` (consistent mass), the volume
-correction off (``alpha = 0``: no particles to crowd) and the convective term on
-(``convection = 1``, Oseen: ``rho (v_n . grad) v_{n+1}``, see
-``forms/incompressible.py``). Every function of the grid carries fluid: the domain is
-the whole grid.
+On the fixed grid the forms see: ``density`` a constant, the particle ``velocity`` (the PSPG
+parameter's speed) and ``acceleration`` the previous step's grid fields at the Gauss points,
+``dx_lumped`` the ordinary ``dx`` (consistent mass), the volume correction off (no particles to
+crowd) and the convective term on (``convection = 1``, Oseen: ``rho (v_n . grad) v_{n+1}``).
+Every function of the grid carries fluid.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
+
 from fempm.bases import Basis
 from fempm.errors import InputError
-from fempm.implicit import ImplicitOptions, ImplicitSolver
+from fempm.options import Controls, Physics, Scheme
 from fempm.quadrature import GaussForm
+from fempm.safeguards import PressureCheck
 from fempm.space import GridFunction
-
-import numpy as np
+from fempm.stepper import Stepper
+from fempm.system import GridSystem, StepForms
 
 __all__ = ["EulerianSolver"]
 
 
-class EulerianSolver(ImplicitSolver):
-    """The implicit step of :mod:`fempm.implicit` on a fixed grid filled with fluid (FEM-only).
+class EulerianSolver(Stepper):
+    """The implicit step on a fixed grid filled with fluid (FEM-only).
 
     Args:
         basis: the grid basis (``fempm.BSpline2`` or ``fempm.Q1``).
-        options: :class:`~fempm.implicit.ImplicitOptions`; ``alpha`` and ``pic_blend``
-            do not apply (no particles).
+        physics, scheme, controls: see :mod:`fempm.options`; the volume correction and the PIC
+            share do not apply (no particles).
         density: the fluid's density, kg/m^3.
         degree: degree of the Gauss rule (default that of :class:`~fempm.quadrature.GaussForm`).
 
     Attributes:
-        velocity, acceleration: grid functions of the last step's v_{n+1}, a_{n+1} (set
+        velocity, acceleration, pressure: grid functions of the last step's v_{n+1}, a_{n+1}, p (set
             ``velocity.values`` before the first step for an initial velocity).
     """
 
-    def __init__(self, basis: Basis, options: ImplicitOptions | None = None, density: float = 1000.0,
-                 degree: int | None = None):
+    def __init__(self, basis: Basis, physics: Physics | None = None, scheme: Scheme | None = None,
+                 controls: Controls | None = None, density: float = 1000.0, degree: int | None = None):
         if not density > 0:
             raise InputError(f"density must be positive, got {density}")
-        self.particles = None
-        self.density, self._degree = float(density), degree
-        self._setup(basis, replace(options or ImplicitOptions(), alpha=0.0), convection=1.0)
-        self.acceleration = GridFunction(self.vector_space, "acceleration")
-        self._compile_forms()
-        if "convection" not in self.residual_form.symbols.used_constants.values():
-            raise InputError(f"forms file {str(self.options.forms)!r}: its residual has no convective term "
+        physics, controls = physics or Physics(), controls or Controls()
+        scheme = replace(scheme or Scheme(), alpha=0.0)
+        for part in (physics, scheme, controls):
+            part.check()
+        super().__init__(scheme.dt)
+        self.basis, self.grid, self.density = basis, basis.grid, float(density)
+        self.physics, self.scheme, self.controls = physics, scheme, controls
+        self.system = s = GridSystem(basis, physics, scheme, controls, convection=1.0, timings=self.timings)
+        self.velocity, self.pressure = s.velocity, s.pressure
+        self.acceleration = GridFunction(s.vector_space, "acceleration")
+        particle_values = {"density": self.density, "velocity": s.fields["grid_velocity"],
+                           "acceleration": s.fields["grid_acceleration"]}
+        self.forms = StepForms(scheme.forms, lambda builder: _GaussAssembly(GaussForm(
+            builder, s.space, particle_values=particle_values, grid_functions=s.fields, constants=s.constants,
+            degree=degree)))
+        if "convection" not in self.forms.residual.symbols.used_constants.values():
+            raise InputError(f"forms file {str(scheme.forms)!r}: its residual has no convective term "
                              "(it never uses the constant 'convection'), which a fixed grid needs")
+        limit = controls.pressure_limit or 20 * 1000.0 * 9.81 * (self.grid.upper[1] - self.grid.lower[1])
+        self.check_pressure = PressureCheck(self.grid.comm, limit, limit)
+        self.max_divergence = 0.0
 
-    def _form(self, builder):
-        """The form by Gauss quadrature, behind the particle form's assembly calls."""
-        fields = self.grid_fields
-        particle_values = {"density": self.density, "velocity": fields["grid_velocity"],
-                           "acceleration": fields["grid_acceleration"]}
-        return _GaussAssembly(GaussForm(builder, self.space, particle_values=particle_values, grid_functions=fields,
-                                        constants=self.constants, degree=self._degree))
-
-    def project(self) -> np.ndarray:
-        """v_n and a_n: the last step's solution (the walls' own on their held dofs); returns the free dofs."""
-        self.grid_fields["grid_velocity"].values[:] = self.velocity.values
-        self.grid_fields["grid_acceleration"].values[:] = self.acceleration.values
-        self._impose_walls()
-        return self._free_dofs(np.ones(self.space.num_owned_dofs, dtype=bool))
-
-    def update(self):
-        """Keep v_{n+1} and a_{n+1} for the next step; stop on a non-finite or runaway pressure."""
-        _, a_new = self._newmark()
-        self.acceleration.values[:] = a_new
-        self._check_pressure(self.U.field("p")[: self.scalar_space.numbering.num_owned])
-
-    def relocate(self):
-        """Nothing moves on a fixed grid."""
+    def step(self):
+        """Advance by one time step (raises :class:`~fempm.errors.SimulationDiverged`)."""
+        s = self.system
+        with self.advancing():
+            with self.timings("project"):
+                s.fields["grid_velocity"].values[:] = s.velocity.values
+                s.fields["grid_acceleration"].values[:] = self.acceleration.values
+                s.impose_walls()
+                free = s.free.select(np.ones(s.space.num_owned_dofs, dtype=bool))
+            s.solve(self.forms, free, None)
+            with self.timings("update"):
+                _, a_new = s.end_state()
+                self.acceleration.values[:] = a_new
+                self.check_pressure(s.U.field("p")[: s.scalar_space.numbering.num_owned])
 
 
 class _GaussAssembly:

@@ -2,7 +2,8 @@
 
 The scheme of method.md's explicit comparison (Sulsky, Zhou & Schreyer 1995, with the
 stress updated last as in Sulsky, Chen & Schreyer 1994 / Nairn 2003 "MUSL"), on the
-same grid, bases, particles and transfers as :mod:`fempm.implicit`. One step, as named
+same grid, bases, particles, transfers and walls (:class:`~fempm.walls.Walls`) as
+:mod:`fempm.implicit`. One step, as named
 phases::
 
     project   P2G: lumped mass m_i and momentum (m v)_i; which functions carry material
@@ -21,7 +22,7 @@ a cell (Courant, Friedrichs & Lewy 1928)::
 
 which :func:`stable_time_step` computes; ``C`` is the safety factor
 :data:`DEFAULT_CFL` (see there why that value). A run is stopped with
-:class:`~fempm.implicit.SimulationDiverged` naming the cause when a velocity or pressure
+:class:`~fempm.errors.SimulationDiverged` naming the cause when a velocity or pressure
 is not finite, a particle moves more than a cell in one step, a particle's volume
 collapses, the pressure leaves the range the equation of state is meant for, or a
 particle leaves the grid.
@@ -40,30 +41,26 @@ from fempm import transfer
 from fempm.bases import Basis
 from fempm.errors import InputError
 from fempm.formsfile import load_forms
-from fempm.errors import SimulationDiverged
-from fempm.implicit import WALLS
+from fempm.linear import SolveFailed
+from fempm.options import Controls, Physics
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space
-from fempm.timing import PhaseTimes
+from fempm.stepper import Stepper
+from fempm.walls import Walls
 
-__all__ = ["DEFAULT_CFL", "ExplicitOptions", "ExplicitSolver", "stable_time_step"]
+__all__ = ["DEFAULT_CFL", "ExplicitScheme", "ExplicitSolver", "stable_time_step"]
 
-#: Safety factor C of the CFL condition. h / (c + |v|) is the limit of the lumped-mass,
-#: linear-element wave equation in 1-D. Measured on the dam break (B-spline, 40 x 40 cells,
-#: 800 particles; the table "Time step" of docs/implicit-vs-explicit.md, full mode): with
-#: c_0 = 23.9 m/s and |v|_max estimated as sqrt(2 g H) = 2.4 m/s, 2 s of flow ran at
-#: C = 0.5 and 0.7, and blew up at C = 0.8 (t = 1.66 s) and 0.9 (t = 0.35 s, the impact on
-#: the far wall, where the flow reaches twice the estimated speed); with K = 2 GPa
-#: (c = 1414 m/s, the flow speed negligible beside it) 2 s ran at dt = 1e-5 s, C = 0.97.
-#: C = 0.5 stays below the smallest failing value by a factor 1.6, room for a flow
-#: faster than its estimate and for particles crowding.
+#: Safety factor C of the CFL condition. ``h / (c + |v|)`` is the limit of the lumped-mass linear
+#: wave equation in 1-D; the dam break's flow reaches about twice the estimate ``sqrt(2 g H)`` at the
+#: impact on the far wall, and particles crowd, so C stays well below 1 (the stability map of
+#: docs/implicit-vs-explicit.md measures where it breaks).
 DEFAULT_CFL = 0.5
 
 
 @dataclass
-class ExplicitOptions:
-    """Parameters of the explicit scheme (SI units).
+class ExplicitScheme:
+    """The explicit scheme (SI units).
 
     Attributes:
         dt: time step; ``None`` takes :func:`stable_time_step` with ``cfl``.
@@ -73,15 +70,7 @@ class ExplicitOptions:
             ``bulk_modulus`` (weakly compressible practice: c_0 about 10 |v|_max).
         max_speed: the largest flow speed expected, for the CFL condition
             (the dam break: sqrt(2 g H)); the run stops if a particle moves a cell in a step.
-        viscosity: dynamic viscosity mu.
-        gravity: body acceleration.
         pic_blend: 0 = pure FLIP, 1 = pure PIC, in between a blend of the two.
-        walls: ``"slip"`` (zero normal velocity) or ``"no-slip"`` on the four walls.
-        min_support_fraction: basis functions whose support holds less material than this
-            fraction of ``rho_0 int N_i dx`` get no velocity (as in the implicit solver):
-            ``1 / m_i`` is unbounded there.
-        pressure_limit: a step whose |p| exceeds this (Pa) is taken as diverged; default
-            K / 2, a density change of 50 %, far outside what the equation of state models.
         forms: file of the forms (default ``forms/weakly_compressible.py``).
     """
 
@@ -90,16 +79,11 @@ class ExplicitOptions:
     bulk_modulus: float = 2.0e9
     sound_speed: float | None = None
     max_speed: float = 0.0
-    viscosity: float = 1.0e-3
-    gravity: tuple[float, float] = (0.0, -9.81)
     pic_blend: float = 0.0
-    walls: str = "slip"
-    min_support_fraction: float = 1e-3
-    pressure_limit: float | None = None
     forms: str | Path = "weakly_compressible"
 
     def check(self):
-        """Raise :class:`InputError` naming the first unacceptable option."""
+        """Raise :class:`InputError` naming the first unacceptable value."""
         if self.dt is not None and not (np.isfinite(self.dt) and self.dt > 0):
             raise InputError(f"dt must be positive (or None for the CFL step), got {self.dt}")
         if not 0 < self.cfl <= 1:
@@ -110,12 +94,8 @@ class ExplicitOptions:
             raise InputError(f"sound_speed must be positive, got {self.sound_speed}")
         if not self.max_speed >= 0:
             raise InputError(f"max_speed must be >= 0, got {self.max_speed}")
-        if self.viscosity < 0:
-            raise InputError(f"viscosity must be >= 0, got {self.viscosity}")
         if not 0 <= self.pic_blend <= 1:
             raise InputError(f"pic_blend must be in [0, 1], got {self.pic_blend}")
-        if self.walls not in WALLS:
-            raise InputError(f"walls must be one of {WALLS}, got {self.walls!r}")
 
 
 def stable_time_step(h: float, sound_speed: float, max_speed: float, kinematic_viscosity: float,
@@ -127,7 +107,7 @@ def stable_time_step(h: float, sound_speed: float, max_speed: float, kinematic_v
     return cfl * min(limits)
 
 
-class ExplicitSolver:
+class ExplicitSolver(Stepper):
     """Advances particles of a weakly compressible viscous fluid by explicit MUSL MPM.
 
     Args:
@@ -135,18 +115,29 @@ class ExplicitSolver:
         particles: the fluid (fields ``density``, ``velocity``); ``pressure`` and
             ``velocity_gradient`` fields are added if missing, zero: the fluid starts
             without stress. The pressure then follows the density by the equation of state.
-        options: :class:`ExplicitOptions`.
+        physics: viscosity, gravity and walls (``slip`` or ``no-slip`` sides only).
+        scheme: :class:`ExplicitScheme`.
+        controls: ``min_support_fraction`` (functions with less material get no velocity:
+            ``1 / m_i`` is unbounded there) and ``pressure_limit`` (|p| beyond it is a blow-up;
+            default K / 2, a density change of 50 %) apply.
 
     Attributes:
-        options: the options with ``dt`` resolved.
+        scheme: the scheme with ``dt`` resolved.
         reference_density: rho_0 of the equation of state (the particles' largest density).
         bulk_modulus, sound_speed: K and c = sqrt(K / rho_0) in use.
     """
 
-    def __init__(self, basis: Basis, particles: Particles, options: ExplicitOptions | None = None):
-        options = options or ExplicitOptions()
-        options.check()
+    def __init__(self, basis: Basis, particles: Particles, physics: Physics | None = None,
+                 scheme: ExplicitScheme | None = None, controls: Controls | None = None):
+        physics, scheme, controls = physics or Physics(), scheme or ExplicitScheme(), controls or Controls()
+        for part in (physics, scheme, controls):
+            part.check()
+        open_sides = [side for side, kind in physics.wall_conditions().items() if kind not in ("slip", "no-slip")]
+        if open_sides:
+            raise InputError(f"explicit solver: walls.{open_sides[0]} must be 'slip' or 'no-slip' (the "
+                             f"explicit scheme has no outflow or open sides)")
         self.basis, self.particles, self.grid = basis, particles, basis.grid
+        self.physics, self.controls = physics, controls
         self.comm = self.grid.comm
         for name, shape in (("pressure", ()), ("velocity_gradient", (2, 2))):
             if name not in particles.fields:
@@ -155,21 +146,22 @@ class ExplicitSolver:
         if not self.reference_density > 0:
             raise InputError("explicit solver: no particle has a positive density")
         rho0 = self.reference_density
-        if options.sound_speed is not None:
-            self.sound_speed, self.bulk_modulus = options.sound_speed, rho0 * options.sound_speed**2
+        if scheme.sound_speed is not None:
+            self.sound_speed, self.bulk_modulus = scheme.sound_speed, rho0 * scheme.sound_speed**2
         else:
-            self.sound_speed, self.bulk_modulus = np.sqrt(options.bulk_modulus / rho0), options.bulk_modulus
-        if options.dt is None:
-            options = dataclasses.replace(options, dt=stable_time_step(
-                self.grid.h, self.sound_speed, options.max_speed, options.viscosity / rho0, options.cfl))
-        self.options = options
-        self.pressure_limit = options.pressure_limit or 0.5 * self.bulk_modulus
+            self.sound_speed, self.bulk_modulus = np.sqrt(scheme.bulk_modulus / rho0), scheme.bulk_modulus
+        if scheme.dt is None:
+            scheme = dataclasses.replace(scheme, dt=stable_time_step(
+                self.grid.h, self.sound_speed, scheme.max_speed, physics.viscosity / rho0, scheme.cfl))
+        self.scheme = scheme
+        super().__init__(scheme.dt)
+        self.pressure_limit = controls.pressure_limit or 0.5 * self.bulk_modulus
         self.vector_space = Space(basis, {"v": 2})
         self.scalar_space = Space(basis, {"m": 1})
         self.velocity = GridFunction(self.vector_space, "velocity")  # after the MUSL re-projection
         self._g2p = GridFunction(Space(basis, {"dv": 2, "v": 2}), "g2p")
-        self.constants = {"mu": options.viscosity, "gravity": np.asarray(options.gravity, dtype=float)}
-        forms = load_forms(options.forms, required=("force", "pressure"))
+        self.constants = {"mu": physics.viscosity, "gravity": np.asarray(physics.gravity, dtype=float)}
+        forms = load_forms(scheme.forms, required=("force", "pressure"))
         self.equation_of_state = forms.pressure
         self.force_form = ParticleForm(forms.force, self.vector_space, particle_shapes=particles,
                                        constants=self.constants)
@@ -178,30 +170,27 @@ class ExplicitSolver:
         self._mass = GridFunction(self.scalar_space, "mass")
         self._momentum = GridFunction(self.vector_space, "momentum")
         self._pressure = GridFunction(self.scalar_space, "pressure")
-        self._wall = self._wall_mask()
-        self.time = 0.0
-        self.steps = 0
+        self.walls = Walls(self.vector_space, physics, field="v")
+        self._held = self.walls.held_mask(self.vector_space)
         self.max_divergence = 0.0
-        self.timings = PhaseTimes()  # wall seconds by phase
 
     # -- one step ------------------------------------------------------------------------
     def step(self):
-        """Advance the particles by one time step (raises :class:`SimulationDiverged`)."""
-        with self.timings("project"):
-            momentum = self.project()
-        with self.timings("forces"):
-            force = self.forces()
-        with self.timings("grid"):
-            v_old, v_new = self.update_grid(momentum, force)
-        with self.timings("update"):
-            self.update_particles(v_old, v_new)
-        with self.timings("stress"):
-            x_old = self.update_stress()
-        self._stop_if_diverged(x_old)
-        with self.timings("relocate"):
-            self.particles.relocate()
-        self.time += self.options.dt
-        self.steps += 1
+        """Advance the particles by one time step (raises :class:`~fempm.errors.SimulationDiverged`)."""
+        with self.advancing():
+            with self.timings("project"):
+                momentum = self.project()
+            with self.timings("forces"):
+                force = self.forces()
+            with self.timings("grid"):
+                v_old, v_new = self.update_grid(momentum, force)
+            with self.timings("update"):
+                self.update_particles(v_old, v_new)
+            with self.timings("stress"):
+                x_old = self.update_stress()
+            self._stop_if_diverged(x_old)
+            with self.timings("relocate"):
+                self.particles.relocate()
 
     # -- phases ------------------------------------------------------------------------
     def project(self) -> np.ndarray:
@@ -210,7 +199,7 @@ class ExplicitSolver:
         self.vector_space.tabulate_particles(p, order=1)  # one tabulation serves every phase
         m = transfer.lumped_mass(self.scalar_space, p, self._mass).values[:, 0]
         integrals = self.basis.integrals[self.scalar_space.numbering.local_functions]
-        active = (m > 0) & (m >= self.options.min_support_fraction * self.reference_density * integrals)
+        active = (m > 0) & (m >= self.controls.min_support_fraction * self.reference_density * integrals)
         self._inverse_mass = np.where(active, 1.0 / np.where(active, m, 1.0), 0.0)[:, None]
         return transfer.momentum(self.vector_space, p, self._momentum).values.copy()
 
@@ -222,18 +211,18 @@ class ExplicitSolver:
 
     def update_grid(self, momentum: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Forward Euler on the grid momentum with the walls; returns ``v_n`` and ``v_{n+1}``."""
-        new = np.where(self._wall, 0.0, momentum + self.options.dt * force)
+        new = np.where(self._held, 0.0, momentum + self.dt * force)
         return momentum * self._inverse_mass, new * self._inverse_mass
 
     def update_particles(self, v_old: np.ndarray, v_new: np.ndarray):
         """G2P: FLIP ``v_p += sum_i (v_i^{n+1} - v_i^n) N_i(x_p)`` (or a PIC blend) and ``a_p``."""
-        o, p = self.options, self.particles
-        self._g2p.values[:, 0:2] = v_new - v_old
-        self._g2p.values[:, 2:4] = v_new
-        at_particles = transfer.grid_to_particles(self._g2p, p)
-        k = o.pic_blend
-        p["velocity"][:] = (1 - k) * (p["velocity"] + at_particles[:, 0:2]) + k * at_particles[:, 2:4]
-        p["acceleration"][:] = at_particles[:, 0:2] / o.dt
+        p, g = self.particles, self._g2p
+        g.field("dv")[:] = v_new - v_old
+        g.field("v")[:] = v_new
+        at = transfer.grid_to_particles(g, p)
+        change, new = at[:, g.space.field_slice("dv")], at[:, g.space.field_slice("v")]
+        p["velocity"][:] = transfer.flip(p["velocity"], change, new, self.scheme.pic_blend)
+        p["acceleration"][:] = change / self.dt
 
     def update_stress(self) -> np.ndarray:
         """MUSL: grid velocity re-projected from the new particle momenta; then x_p, L_p, volume, pressure.
@@ -243,17 +232,17 @@ class ExplicitSolver:
         (``f_i / m_i`` does not), and it is zero normal to the walls. The positions move
         with it too, ``x_p += dt sum_i v_i N_i(x_p)``: with the velocity of the grid update
         instead, functions at the edge of the water next to a wall reached tens of m/s
-        and carried particles through the wall (the dam break at t = 0.28 s).
+        and carried particles through the wall.
 
         Returns the positions before the move (for the divergence check).
         """
-        p, dt = self.particles, self.options.dt
+        p, dt = self.particles, self.dt
         momentum = transfer.momentum(self.vector_space, p, self._momentum).values
-        self.velocity.values[:] = np.where(self._wall, 0.0, momentum) * self._inverse_mass
+        self.velocity.values[:] = np.where(self._held, 0.0, momentum) * self._inverse_mass
         jets = transfer.grid_jets_to_particles(self.velocity, p, order=1)
         x_old = p.x
         p.fields["x"] = x_old + dt * jets[:, 0]
-        L = np.transpose(jets[:, 1:3, :], (0, 2, 1)) / self.grid.h  # L[p, c, d] = d v_c / d x_d
+        L = transfer.gradient(jets, self.grid.h)  # L[p, c, d] = d v_c / d x_d
         p["velocity_gradient"][:] = L
         # det(I + dt L): the volume ratio of the step's deformation-gradient increment
         ratio = (1 + dt * L[:, 0, 0]) * (1 + dt * L[:, 1, 1]) - dt * dt * L[:, 0, 1] * L[:, 1, 0]
@@ -276,11 +265,11 @@ class ExplicitSolver:
 
     # -- divergence ----------------------------------------------------------------------
     def _stop_if_diverged(self, x_old: np.ndarray):
-        """Raise :class:`SimulationDiverged` on every rank if any rank finds a cause."""
+        """Raise :class:`~fempm.linear.SolveFailed` on every rank if any rank finds a cause."""
         causes = self.comm.allgather(self._local_cause(x_old))
         cause = next((c for c in causes if c), None)
         if cause:
-            raise SimulationDiverged(self.time + self.options.dt, self.steps + 1, cause)
+            raise SolveFailed(cause)
 
     def _local_cause(self, x_old: np.ndarray) -> str | None:
         p, h = self.particles, self.grid.h
@@ -296,7 +285,7 @@ class ExplicitSolver:
         if moved.max(initial=0.0) > 1.0:
             k = int(np.argmax(moved))
             return (f"particle {p.id[k]} moved {moved[k]:.3g} cells in one step (|v| dt > h): "
-                    f"dt = {self.options.dt:.3g} s violates the CFL condition")
+                    f"dt = {self.dt:.3g} s violates the CFL condition")
         bad = ~(self._volume_ratio > 0)
         if bad.any():
             return (f"the volume of particle {first(bad)} collapsed (det(I + dt L) = "
@@ -311,17 +300,3 @@ class ExplicitSolver:
             k = np.flatnonzero(bad)[0]
             return f"particle {p.id[k]} left the grid at ({p.x[k, 0]:.4g}, {p.x[k, 1]:.4g})"
         return None
-
-    # -- helpers -----------------------------------------------------------------------
-    def _wall_mask(self) -> np.ndarray:
-        """Boolean ``(local functions, 2)``: the velocity components held at zero on the walls."""
-        space = self.vector_space
-        if self.options.walls == "no-slip":
-            dofs = [space.wall_dofs("v", c) for c in range(2)]
-        else:
-            dofs = [space.wall_dofs("v", 0, "lr"), space.wall_dofs("v", 1, "bt")]
-        flag = GridFunction(space, "walls")
-        owned = space.local_to_global[: space.num_owned_dofs]
-        flag.vector.array[: space.num_owned_dofs] = np.isin(owned, np.concatenate(dofs))
-        flag.scatter_forward()
-        return flag.values > 0.5

@@ -10,20 +10,15 @@ named here:
 * :data:`DIRECT` (the default): LU by MUMPS, for small and medium problems (on several
   ranks sequential MUMPS on every rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: FGMRES preconditioned by a Schur-complement field split of the
-  velocity-pressure system (Elman, Silvester & Wathen 2014, ch. 9), for large problems:
-  the ``selfp`` approximation of the Schur complement ``S ~ D - C diag(A)^-1 B`` by one
-  V-cycle of algebraic multigrid (hypre BoomerAMG if this PETSc has it, else PETSc's
-  GAMG, dropping couplings below 0.02 of the diagonal when it aggregates: the B-spline
-  stencil is wide, and without the threshold the dam break with 1e5 particles took 19
-  iterations, with it 11, in a third of the time), the velocity block by its diagonal: it is the lumped mass over ``beta dt^2``
-  plus a viscous part smaller by ``~ 2 mu dt / (rho h^2)`` (1e-3 for water in the dam
-  break), for which Jacobi is as good as a multigrid cycle at a fraction of the cost
-  (one dam-break step with 1e5 particles: 1.3 s against 5.0 s with GAMG). The relative
-  tolerance 1e-13 puts the solution within 1e-8 of the direct one (1e-12 left the velocity
-  of the lumped-mass step at 1.1e-8; 1e-10 left the pressure
-  at 2e-8). When the water splashes (dam break, t ~ 0.29 s) the iterations rise to
-  ~200 with FGMRES restarted every 30; restarted every 100 they stay below 70. Very
-  viscous flows may want ``fieldsplit_u_pc_type = "gamg"``.
+  velocity-pressure system (Elman, Silvester & Wathen 2014, ch. 9), for large problems: the
+  ``selfp`` approximation of the Schur complement ``S ~ D - C diag(A)^-1 B`` by one V-cycle of
+  algebraic multigrid (hypre BoomerAMG if this PETSc has it, else PETSc's GAMG with a drop
+  threshold: the B-spline stencil is wide), the velocity block by its diagonal: it is the lumped
+  mass over ``beta dt^2`` plus a viscous part smaller by ``~ 2 mu dt / (rho h^2)``, for which
+  Jacobi does as well as a multigrid cycle at a fraction of the cost. The relative tolerance is
+  tight enough that the solution agrees with the direct one to 1e-8 (``tests/test_iterative.py``);
+  FGMRES restarts rarely, since splashes raise the iteration count. Very viscous flows may want
+  ``fieldsplit_u_pc_type = "gamg"``.
 
 The field split needs the fields of the interleaved dofs; a solver given ``fields``
 (e.g. ``{"u": 2, "p": 1}``) builds one index set per field over the free dofs.
@@ -42,8 +37,8 @@ __all__ = ["DIRECT", "ITERATIVE", "LinearSolver", "SolveFailed", "check_options"
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
 # MUMPS's parallel factorisation schedules its work dynamically, so on several ranks its
-# result changes in the last bits from one run to the next (measured: fronts of two
-# identical 2-rank dam breaks part at 1e-16 m after ~70 steps). On several ranks every rank
+# result changes in the last bits from one run to the next (two identical 2-rank dam breaks
+# part after a few dozen steps). On several ranks every rank
 # therefore factors a gathered copy with sequential MUMPS: reproducible runs and restarts,
 # the same numbers on any number of ranks; large problems take ITERATIVE.
 _DIRECT_PARALLEL = {"ksp_type": "preonly", "pc_type": "redundant", "redundant_pc_type": "lu",

@@ -29,7 +29,7 @@ import dolfinx.fem.petsc
 
 from fempm.space import Space
 
-__all__ = ["GridMatrix", "MatrixLayout", "grid_matrix", "layout"]
+__all__ = ["GridMatrix", "MatrixLayout", "create_matrix", "grid_matrix", "layout"]
 
 _CHUNK = 1 << 15  # functions per chunk while building the column indices
 
@@ -176,9 +176,17 @@ def layout(space: Space) -> MatrixLayout:
     return _layouts[space]
 
 
+def create_matrix(space: Space) -> PETSc.Mat:
+    """A PETSc AIJ matrix (block size ``bs``) of ``space`` with the full-grid sparsity, all zero.
+
+    Particle forms assemble into its CSR storage directly.
+    """
+    return GridMatrix(space).finalize()
+
+
 def grid_matrix(mat: PETSc.Mat) -> GridMatrix:
-    """The :class:`GridMatrix` behind a PETSc matrix made by :meth:`Space.create_matrix`."""
+    """The :class:`GridMatrix` behind a PETSc matrix made by :func:`create_matrix`."""
     gm = mat.getAttr("fempm_grid_matrix")
     if gm is None:
-        raise TypeError("this PETSc matrix was not created by fempm.Space.create_matrix()")
+        raise TypeError("this PETSc matrix was not created by fempm.matrix.create_matrix()")
     return gm

@@ -52,7 +52,7 @@ from fempm import assembly
 from fempm.bases import jet_indices
 from fempm.errors import InputError
 from fempm.lagrange import extraction_matrix, lagrange_space
-from fempm.matrix import grid_matrix, layout
+from fempm.matrix import create_matrix, grid_matrix, layout
 from fempm.space import GridFunction, Space
 
 __all__ = ["GaussForm", "ParticleForm", "Symbols"]
@@ -477,7 +477,7 @@ class ParticleForm:
         """The matrix ``A_ij = sum_p V_p a(phi_j, phi_i)(x_p)``, assembled (zeroed first if given)."""
         self._require_rank(2)
         if A is None:
-            A = self.space.create_matrix()
+            A = create_matrix(self.space)
         target = grid_matrix(A)
         if target.space is not self.space and target.layout is not layout(self.space):
             raise InputError("the matrix was created by another space than the form's")

@@ -1,7 +1,7 @@
 """The time loop of a run and what it records: histories, ParaView series, pictures, summary.
 
-Works with any solver that has ``step()``, ``time``, ``steps``, ``options.dt``,
-``particles``, ``grid``, ``basis``, ``timings`` (wall time by phase), ``velocity`` and
+Works with any solver that is a :class:`~fempm.stepper.Stepper` (``step()``, ``time``,
+``steps``, ``dt``, ``timings``) and has ``particles``, ``grid``, ``basis``, ``velocity`` and
 ``pressure`` (grid functions) and ``max_divergence``.
 
 Files are due by step count (an interval of ``k`` steps writes at steps 0, k, 2k, ...),
@@ -59,7 +59,7 @@ class Recorder:
     def __init__(self, solver, options: RecorderOptions):
         self.solver, self.options = solver, options
         self.folder = output.prepare_folder(options.folder, solver.grid.comm)
-        dt = solver.options.dt
+        dt = solver.dt
         self.front: list[tuple[float, float]] = []
         self.cells: list[tuple[float, int, float]] = []  # (t, occupied cells, surface height)
         self.pressure_min, self.pressure_max, self.max_divergence = np.inf, -np.inf, 0.0
@@ -136,7 +136,7 @@ class Recorder:
             "occupied_cells_initial": self.cells[0][1], "occupied_cells_final": self.cells[-1][1],
             "mean_depth_final_m": self.cells[-1][1] * h * h / floor,
             "surface_height_final_m": self.cells[-1][2],
-            "wall_stops": getattr(s, "wall_stops", 0),
+            "wall_stops": s.walls.stops,
             **self.options.extra,
         }
         if self.options.final_snapshot:
@@ -168,7 +168,7 @@ def run(solver, end_time: float, recorder: Recorder, progress: bool = True, chec
     """
     comm = solver.grid.comm
     bar = Progress(end_time, comm, start_time=solver.time) if progress else None
-    n_steps = int(round((end_time - solver.time) / solver.options.dt))
+    n_steps = int(round((end_time - solver.time) / solver.dt))
     status, cause = "completed", None
     wall0 = time.perf_counter()
     if not recorder.front:

@@ -27,7 +27,7 @@ import numpy as np
 from fempm.errors import InputError
 from fempm.formsfile import FORMS_DIR
 from fempm.grid import cell_counts, square_cell_size
-from fempm.implicit import ImplicitOptions
+from fempm.options import Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
 from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, fraction, key, non_negative,
                           petsc_table, point, points, positive, square_count, text, times)
@@ -132,15 +132,15 @@ class Time:
 
 @dataclass(frozen=True)
 class Solver:
-    """Discretisation and solver options (see ``fempm.implicit.ImplicitOptions``)."""
+    """Discretisation and solver options (see :class:`fempm.options.Scheme`)."""
 
     basis: str = key(choice("bspline", "q1"), "bspline")
     linear: str = key(choice("direct", "iterative"), "direct")
     pspg: bool = key(boolean, True)
-    volume_correction: float = key(fraction, ImplicitOptions.alpha)
-    pic_blend: float = key(fraction, ImplicitOptions.pic_blend)
-    newmark_beta: float = key(positive, ImplicitOptions.beta)
-    newmark_gamma: float = key(positive, ImplicitOptions.gamma)
+    volume_correction: float = key(fraction, Scheme.alpha)
+    pic_blend: float = key(fraction, Scheme.pic_blend)
+    newmark_beta: float = key(positive, Scheme.beta)
+    newmark_gamma: float = key(positive, Scheme.gamma)
     forms: str = key(text, "incompressible")
     petsc: dict = key(petsc_table, {})
 

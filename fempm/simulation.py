@@ -18,19 +18,19 @@ import numpy as np
 from mpi4py import MPI
 
 from fempm import linear, recording
-from fempm.bases import BSpline2, Q1
+from fempm.bases import BASES
 from fempm.errors import InputError
 from fempm.grid import Grid
-from fempm.implicit import ImplicitOptions, ImplicitSolver
+from fempm.implicit import ImplicitSolver
+from fempm.options import Controls, Physics, Scheme
 from fempm.particles import Particles, sub_cell_centres
 from fempm.recording import Recorder, RecorderOptions
 from fempm.restart import CHECKPOINT, Checkpoints, StopSignals, read_checkpoint, restore
 from fempm.scene import Scene, scene_from_text, to_toml
 
-__all__ = ["build_solver", "resume", "run_scene"]
+__all__ = ["build_material", "build_solver", "recorder_for", "resume", "run_scene"]
 
-BASES = {"bspline": BSpline2, "q1": Q1}
-FIELDS = {"u": 2, "p": 1}  # the unknowns of ImplicitSolver.space, for the PETSc option check
+FIELDS = {"u": 2, "p": 1}  # the unknowns of the implicit step, for the PETSc option check
 
 
 def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
@@ -44,12 +44,10 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     linear.set_options(petsc)
     linear.check_options(comm, list(sv.petsc), FIELDS)
     basis, particles = build_material(scene, comm)
-    options = ImplicitOptions(
-        dt=scene.time.dt, beta=sv.newmark_beta, gamma=sv.newmark_gamma, viscosity=fluid.viscosity,
-        gravity=scene.gravity, alpha=sv.volume_correction, pspg=sv.pspg,
-        pic_blend=sv.pic_blend, walls=asdict(scene.walls), forms=sv.forms, petsc_options=petsc,
-    )
-    return ImplicitSolver(basis, particles, options)
+    physics = Physics(viscosity=fluid.viscosity, gravity=scene.gravity, walls=asdict(scene.walls))
+    scheme = Scheme(dt=scene.time.dt, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,
+                    pspg=sv.pspg, pic_blend=sv.pic_blend, forms=sv.forms)
+    return ImplicitSolver(basis, particles, physics, scheme, Controls(petsc_options=petsc))
 
 
 def build_material(scene: Scene, comm=MPI.COMM_WORLD) -> tuple:
@@ -115,13 +113,19 @@ def resume(folder: str | Path, comm=MPI.COMM_WORLD, end_time: float | None = Non
     return _run(scene, build_solver(scene, comm), checkpoint, progress)
 
 
-def _run(scene: Scene, solver: ImplicitSolver, checkpoint, progress: bool | None) -> dict:
+def recorder_for(scene: Scene, solver, extra: dict | None = None) -> Recorder:
+    """The recorder of a scene's ``[output]`` for ``solver`` (any scheme); ``extra`` joins the summary."""
     o = scene.output
-    recorder = Recorder(solver, RecorderOptions(
+    return Recorder(solver, RecorderOptions(
         folder=Path(o.folder), particles_interval=o.particles_interval, grid_interval=o.grid_interval,
         snapshot_times=o.snapshots, final_snapshot=o.final_snapshot, pressure_scale=o.pressure_scale,
-        extra={"scene": scene.name, "dt": scene.time.dt, "resumed_from_step": checkpoint.steps if checkpoint else None},
+        extra={"scene": scene.name, "dt": solver.dt, **(extra or {})},
     ))
+
+
+def _run(scene: Scene, solver: ImplicitSolver, checkpoint, progress: bool | None) -> dict:
+    o = scene.output
+    recorder = recorder_for(scene, solver, {"resumed_from_step": checkpoint.steps if checkpoint else None})
     if checkpoint:
         restore(solver, recorder, checkpoint)
     checkpoints = Checkpoints(recorder.folder, to_toml(scene), o.checkpoint_interval, scene.time.dt)

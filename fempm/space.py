@@ -1,4 +1,4 @@
-"""Equal-order function spaces on a basis, their parallel numbering and PETSc objects.
+"""Equal-order function spaces on a basis, their parallel numbering and ghosted vectors.
 
 A :class:`Space` is one basis carrying named fields, e.g. ``{"u": 2, "p": 1}``
 for velocity and pressure. Its unknowns are interleaved per basis function,
@@ -15,11 +15,9 @@ DOLFINx ``IndexMap``, so vectors are DOLFINx ``la.Vector`` objects whose
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from petsc4py import PETSc
 
 import dolfinx.la
 from dolfinx.common import IndexMap
@@ -27,7 +25,7 @@ from dolfinx.common import IndexMap
 from fempm.bases import Basis
 from fempm.errors import InputError
 
-__all__ = ["GridFunction", "Numbering", "Space", "Support"]
+__all__ = ["GridFunction", "Numbering", "Space"]
 
 
 class Numbering:
@@ -74,26 +72,6 @@ def numbering(basis: Basis) -> Numbering:
     return basis._numbering
 
 
-@dataclass
-class Support:
-    """Which functions carry particles, for one particle configuration.
-
-    Attributes:
-        local: boolean per local function (owned and ghost): some particle lies
-            in a cell of its support, on any rank.
-        active_dofs: global indices of this rank's owned dofs with support.
-        unsupported_dofs: global indices of this rank's owned dofs without.
-    """
-
-    local: np.ndarray
-    active_dofs: np.ndarray
-    unsupported_dofs: np.ndarray
-
-    def active_is(self, comm) -> PETSc.IS:
-        """The active owned dofs as a PETSc index set."""
-        return PETSc.IS().createGeneral(self.active_dofs.astype(PETSc.IntType), comm=comm)
-
-
 class Space:
     """Named fields of given component counts on one basis, unknowns interleaved.
 
@@ -120,19 +98,16 @@ class Space:
 
     def field_offset(self, name: str) -> int:
         """First component of field ``name`` within a block of ``bs`` dofs."""
+        return self.field_slice(name).start
+
+    def field_slice(self, name: str) -> slice:
+        """The components of field ``name`` within a block of ``bs`` dofs."""
         offset = 0
         for field, n in self.fields.items():
             if field == name:
-                return offset
+                return slice(offset, offset + n)
             offset += n
         raise InputError(f"space has no field {name!r}; its fields are {list(self.fields)}")
-
-    def field_dofs(self, name: str) -> np.ndarray:
-        """Global indices of this rank's owned dofs of field ``name`` (all its components)."""
-        first = self.field_offset(name)
-        owned = self.numbering.global_index[self.numbering.local_functions[: self.numbering.num_owned]]
-        comps = np.arange(first, first + self.fields[name])
-        return (self.bs * owned[:, None] + comps).ravel()
 
     def wall_dofs(self, name: str, component: int, walls: str = "lrbt") -> np.ndarray:
         """Global indices of owned dofs of one component of a field on the given walls.
@@ -179,11 +154,6 @@ class Space:
         g = self.numbering.global_index[self.numbering.local_functions]
         return (self.bs * g[:, None] + np.arange(self.bs)).ravel()
 
-    @cached_property
-    def lgmap(self) -> PETSc.LGMap:
-        """PETSc local-to-global map of the dofs."""
-        return PETSc.LGMap().create(self.local_to_global.astype(PETSc.IntType), comm=self.comm)
-
     def local_functions_of_cells(self, cells: np.ndarray) -> np.ndarray:
         """Local function numbers of the functions non-zero in each (local) cell."""
         return self.numbering.local_index[self.basis.cell_functions(cells)]
@@ -208,17 +178,7 @@ class Space:
         particles.cache[(id(self.basis), order)] = (phi, lfun)
         return phi, lfun
 
-    # -- PETSc objects --------------------------------------------------------------
-    def create_matrix(self) -> PETSc.Mat:
-        """A PETSc AIJ matrix (block size ``bs``) with the full-grid sparsity, all zero.
-
-        Particle forms assemble into its CSR storage directly (see :mod:`fempm.matrix`).
-        """
-        from fempm.matrix import GridMatrix
-
-        gm = GridMatrix(self)
-        return gm.finalize()
-
+    # -- vectors ----------------------------------------------------------------------
     def create_vector(self) -> dolfinx.la.Vector:
         """A DOLFINx vector with ghosts (``.array`` is owned then ghost dofs).
 
@@ -227,20 +187,6 @@ class Space:
         should create its vectors once and reuse them.
         """
         return dolfinx.la.vector(self.numbering.index_map, self.bs)
-
-    # -- particle support -------------------------------------------------------------
-    def support(self, particles) -> Support:
-        """Which functions have a particle in some cell of their support, on any rank."""
-        flag = dolfinx.la.vector(self.numbering.index_map, 1)
-        occupied = np.unique(particles.cell)
-        flag.array[:] = 0.0
-        flag.array[np.unique(self.local_functions_of_cells(occupied))] = 1.0
-        flag.scatter_reverse(dolfinx.la.InsertMode.add)
-        flag.scatter_forward()
-        local = flag.array > 0
-        owned_global = self.local_to_global[: self.num_owned_dofs]
-        owned_active = np.repeat(local[: self.numbering.num_owned], self.bs)
-        return Support(local, owned_global[owned_active], owned_global[~owned_active])
 
 
 class GridFunction:
@@ -262,8 +208,7 @@ class GridFunction:
 
     def field(self, name: str) -> np.ndarray:
         """View of the components of one field, shape ``(num_local_functions, ncomp)``."""
-        first = self.space.field_offset(name)
-        return self.values[:, first : first + self.space.fields[name]]
+        return self.values[:, self.space.field_slice(name)]
 
     def scatter_forward(self):
         """Copy owned values to the ghosts on other ranks."""

@@ -9,6 +9,7 @@ With ``N_i`` the basis functions and ``p`` the particles:
 * G2P: ``f(x_p) = sum_i f_i N_i(x_p)`` and ``grad f(x_p) = sum_i f_i grad N_i(x_p)``.
 * The smoothed density of method.md eq. (2):
   ``rho~_i = sum_p W_i(x_p) m_p`` with ``W_i = N_i / int N_i dx``.
+* The FLIP/PIC update of a particle quantity from the grid's change and new value.
 
 Sums over particles on several ranks meet at the owners of the functions.
 """
@@ -17,11 +18,15 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from mpi4py import MPI
 
 from fempm.assembly import jets_at_particles
 from fempm.space import GridFunction, Space
 
 __all__ = [
+    "density_normalisation",
+    "flip",
+    "gradient",
     "grid_jets_to_particles",
     "grid_to_particles",
     "grid_gradient_to_particles",
@@ -78,13 +83,35 @@ def momentum(space: Space, particles, out: GridFunction | None = None) -> GridFu
                              out=out)
 
 
-def smoothed_density(space: Space, particles) -> GridFunction:
-    """``rho~_i = sum_p m_p N_i(x_p) / int N_i dx`` (method.md eq. 2) on a scalar space."""
-    rho = lumped_mass(space, particles)
-    integrals = space.basis.integrals[space.numbering.local_functions]
-    rho.values[:, 0] /= integrals
-    rho.name = "smoothed density"
-    return rho
+def smoothed_density(mass: np.ndarray, integrals: np.ndarray) -> np.ndarray:
+    """``rho~_i = m_i / int N_i dx`` (method.md eq. 2) from the nodal masses ``m_i = sum_p m_p N_i(x_p)``."""
+    return mass / integrals
+
+
+def density_normalisation(basis, particles) -> np.ndarray:
+    """``int N_i dx`` of eq. (2) for every structured function, as the particles measure it.
+
+    When all particles come from one seeding lattice (equal volumes, ``n x n`` per cell) the
+    integral is taken by that lattice's rule, so that a region filled with particles at rest has
+    ``rho~ = rho`` exactly; otherwise by Gauss quadrature.
+    """
+    comm = basis.grid.comm
+    volumes = particles["volume"]
+    v_min = comm.allreduce(float(volumes.min(initial=np.inf)), op=MPI.MIN)
+    v_max = comm.allreduce(float(volumes.max(initial=0.0)), op=MPI.MAX)
+    side = basis.grid.h / np.sqrt(v_max) if v_max > 0 else 0.0
+    if v_max > 0 and v_min == v_max and abs(side - round(side)) < 1e-9:
+        return basis.lattice_integrals(int(round(side)))
+    return basis.integrals
+
+
+def flip(velocity: np.ndarray, change: np.ndarray, new: np.ndarray, pic_blend: float) -> np.ndarray:
+    """The FLIP/PIC update of a particle quantity: ``(1 - k) (q_p + dq(x_p)) + k q_new(x_p)``.
+
+    FLIP adds the grid's change over the step to the particle's own value; PIC takes the grid's
+    new value; ``k = pic_blend`` blends them (0: FLIP, 1: PIC).
+    """
+    return (1 - pic_blend) * (velocity + change) + pic_blend * new
 
 
 def _jets(gf: GridFunction, particles, order: int) -> np.ndarray:
@@ -110,5 +137,9 @@ def grid_to_particles(gf: GridFunction, particles) -> np.ndarray:
 
 def grid_gradient_to_particles(gf: GridFunction, particles) -> np.ndarray:
     """Physical gradients at the particles, shape ``(n, bs, 2)``: ``[p, c, d] = d f_c / d x_d``."""
-    jets = _jets(gf, particles, 1)
-    return np.transpose(jets[:, 1:3, :], (0, 2, 1)) / gf.space.grid.h
+    return gradient(_jets(gf, particles, 1), gf.space.grid.h)
+
+
+def gradient(jets: np.ndarray, h: float) -> np.ndarray:
+    """Physical gradients ``(n, bs, 2)`` from jets of order >= 1 (:func:`grid_jets_to_particles`)."""
+    return np.transpose(jets[:, 1:3, :], (0, 2, 1)) / h

@@ -15,33 +15,33 @@ import numpy as np
 
 from mpi4py import MPI
 
-from fempm.bases import Basis, BSpline2, Q1
-from fempm.errors import InputError
+from fempm.bases import BASES, Basis
+from fempm.errors import InputError, SimulationDiverged
 from fempm.eulerian import EulerianSolver
 from fempm.grid import Grid
-from fempm.implicit import ImplicitOptions, ImplicitSolver, SimulationDiverged
+from fempm.implicit import ImplicitSolver
+from fempm.options import Physics, Scheme
 from fempm.particles import Particles, Rectangle
 
-__all__ = ["BASES", "METHODS", "Measurement", "Run", "advance", "case_arguments", "channel", "filled_solver",
+__all__ = ["METHODS", "Measurement", "Run", "advance", "case_arguments", "channel", "filled_solver",
            "max_relative_error", "profile_demo", "profile_errors", "rates", "sample", "section"]
 
-BASES: dict[str, type[Basis]] = {"B-spline": BSpline2, "Q1": Q1}
 METHODS = ("MPM", "FEM-only")
 
 
-def filled_solver(method: str, basis: Basis, options: ImplicitOptions, density: float = 1.0,
+def filled_solver(method: str, basis: Basis, physics: Physics, scheme: Scheme, density: float = 1.0,
                   per_cell: int = 2, body: Rectangle | None = None):
     """The solver of a closed-domain case: ``"FEM-only"`` (:class:`~fempm.eulerian.EulerianSolver`
     on the whole grid) or ``"MPM"`` (:class:`~fempm.implicit.ImplicitSolver` with
     ``per_cell x per_cell`` particles per cell at rest in ``body``, by default the whole grid)."""
     if method == "FEM-only":
-        return EulerianSolver(basis, options, density=density)
+        return EulerianSolver(basis, physics, scheme, density=density)
     if method != "MPM":
         raise InputError(f"method must be one of {METHODS}, got {method!r}")
     grid = basis.grid
     fluid = Particles(grid)
     fluid.seed(body or Rectangle(grid.lower, grid.upper), per_cell=per_cell, density=density)
-    return ImplicitSolver(basis, fluid, options)
+    return ImplicitSolver(basis, fluid, physics, scheme)
 
 
 def channel(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, *, height: float = 1.0,
@@ -58,16 +58,14 @@ def channel(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, *
     The volume correction is off (``alpha = 0``): particles in a shear flow along x keep
     their rows and neither crowd nor thin out. The PIC share of the MPM update is 0.01,
     not the dam break's 0.1: blended every step, PIC smooths the velocity like an added
-    viscosity of order ``pic_blend h^2 / dt``; with 0.1 at dt = 1e-3 H^2/nu and h = H/16 the
-    steady Poiseuille profile was 8 % off, with 0.01 0.3 % (``benchmarks/report.py``
-    measures it).
+    viscosity of order ``pic_blend h^2 / dt`` (``benchmarks/report.py`` measures it).
     """
     grid = Grid.from_cells(comm, (0.0, 0.0), (height / 2, height), (max(cells // 2, 2), cells))
     walls = {"left": "outflow", "right": "outflow", "bottom": "no-slip", "top": "no-slip"}
-    options = ImplicitOptions(dt=dt, viscosity=density * viscosity, gravity=(body_force, 0.0), walls=walls,
-                              wall_speeds={"top": lid_speed} if lid_speed else {}, recycle=method == "MPM",
-                              alpha=0.0, pic_blend=pic_blend)
-    return filled_solver(method, BASES[basis](grid), options, density=density, per_cell=per_cell)
+    physics = Physics(viscosity=density * viscosity, gravity=(body_force, 0.0), walls=walls,
+                      wall_speeds={"top": lid_speed} if lid_speed else {}, recycle=method == "MPM")
+    scheme = Scheme(dt=dt, alpha=0.0, pic_blend=pic_blend)
+    return filled_solver(method, BASES[basis](grid), physics, scheme, density=density, per_cell=per_cell)
 
 
 def section(solver, y: np.ndarray) -> np.ndarray:
@@ -96,7 +94,7 @@ def advance(solver, end_time: float, each_step=None, run: Run | None = None) -> 
     given carries on accumulating.
     """
     run = run or Run()
-    n = int(round((end_time - solver.time) / solver.options.dt))
+    n = int(round((end_time - solver.time) / solver.dt))
     try:
         for _ in range(n):
             start = time.perf_counter()
@@ -185,9 +183,9 @@ def profile_errors(case: str, solver, times, y: np.ndarray, exact, scale: float,
         run = advance(solver, t, run=run)
         u = section(solver, y)[:, 0]
         error = max_relative_error(u, exact(y, t), scale) if run.status == "completed" else None
-        rows.append(Measurement(f"{case} t={t:g}", method, basis, cells, solver.options.dt,
+        rows.append(Measurement(f"{case} t={t:g}", method, BASES[basis].name, cells, solver.dt,
                                 per_cell**2 if method == "MPM" else 0, error, run.wall, run.status, run.cause,
-                                {"profile": u.tolist(), "pic_blend": solver.options.pic_blend}))
+                                {"profile": u.tolist(), "pic_blend": solver.scheme.pic_blend}))
     return rows
 
 
@@ -203,7 +201,7 @@ def case_arguments(argv, description: str, cells: int, dt: float, dt_unit: str, 
     parser.add_argument("--cells", type=int, default=cells, help=f"cells across the case's height (default {cells})")
     parser.add_argument("--ppc", type=int, default=2, help="MPM particles per cell and direction (default 2)")
     parser.add_argument("--dt", type=float, default=dt, help=f"time step, {dt_unit} (default {dt:g})")
-    parser.add_argument("--basis", choices=tuple(BASES), default="B-spline")
+    parser.add_argument("--basis", choices=tuple(BASES), default="bspline")
     parser.add_argument("--out", default=out, help=f"output folder (default {out})")
     args = parser.parse_args(argv)
     if args.cells < 4 or args.ppc < 1 or not args.dt > 0:

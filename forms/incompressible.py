@@ -41,6 +41,8 @@ compiled once per run and these constants do not change during a run (see
 import numpy as np
 import ufl
 
+from fempm import newmark
+
 
 def eps(w):
     """Symmetric gradient ``eps(w) = (grad w + grad w^T) / 2``."""
@@ -50,17 +52,6 @@ def eps(w):
 def switched_on(constant) -> bool:
     """Whether a constant is non-zero now, at compilation: a term it multiplies is built only if so."""
     return bool(np.any(constant.value != 0))
-
-
-# --- Newmark-beta with the grid reset every step (u_n = 0 on the grid) --------------
-def newmark_acceleration(du, v_n, a_n, dt, beta):
-    """``a_{n+1} = (du - dt v_n - dt^2 (1/2 - beta) a_n) / (beta dt^2)`` (Newmark 1959)."""
-    return (du - dt * v_n - dt**2 * (0.5 - beta) * a_n) / (beta * dt**2)
-
-
-def newmark_velocity(du, v_n, a_n, dt, beta, gamma):
-    """``v_{n+1} = v_n + dt ((1 - gamma) a_n + gamma a_{n+1})`` (Newmark 1959)."""
-    return v_n + dt * ((1 - gamma) * a_n + gamma * newmark_acceleration(du, v_n, a_n, dt, beta))
 
 
 def pspg_tau(speed, dt, h, nu):
@@ -110,8 +101,8 @@ def momentum(s):
     dt, beta, gamma, mu = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("mu")
     g = s.constant("gravity")
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
-    a_new = newmark_acceleration(du, v_n, a_n, dt, beta)
-    v_new = newmark_velocity(du, v_n, a_n, dt, beta, gamma)
+    a_new = newmark.acceleration(du, v_n, a_n, dt, beta)  # the Newmark update of method.md,
+    v_new = newmark.velocity(du, v_n, a_n, dt, beta, gamma, a_new=a_new)  # see fempm/newmark.py
     stress = 2 * mu * ufl.inner(eps(v_new), eps(w)) - p * ufl.div(w) if switched_on(mu) else -p * ufl.div(w)
     carried = convection(s, v_new)
     if carried is not None:
@@ -129,14 +120,14 @@ def continuity(s):
     for expansion, ``alpha`` of the excess per step. method.md writes the correction
     for both signs, ``-(alpha/rho)(rho - rho~)/dt``; we keep only the expansion:
     at a free surface rho~ < rho by construction (the basis functions reach into
-    air), and the contraction asked there squeezed a column at rest by 2.4 % in 1 s
-    (alpha = 0.1) instead of holding it.
+    air), and the contraction asked there squeezes a column at rest instead of
+    holding it (README, "Where fempm departs from method.md").
     """
     du, _ = ufl.split(s.grid("U"))
     _, q = s.test
     dt, beta, gamma, alpha = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("alpha")
     rho = s.particle("density")
-    v_new = newmark_velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
+    v_new = newmark.velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
     if not switched_on(alpha):
         return q * ufl.div(v_new) * s.dx
     crowding = ufl.max_value(s.grid("smoothed_density") - rho, 0)
@@ -152,14 +143,13 @@ def pspg(s):
 
     the strong momentum residual tested with ``grad q``; it gives the continuity rows a
     pressure diagonal, so equal-order velocity and pressure work. The residual is whole,
-    viscous part included (Tezduyar 1992), so the term vanishes on the exact solution:
-    without ``div(2 mu eps)`` steady Poiseuille flow, where viscosity balances the body
-    force, was off by 0.15 % (FEM-only, B-spline, h = H/16) and now only by the
-    discretisation (see docs/verification.md). The second derivatives are taken cell by
-    cell (C^1 B-splines: exact; Q1: its mixed derivative only). The inertia is the step's mean acceleration
+    viscous part included (Tezduyar 1992), so the term vanishes on the exact solution
+    (steady Poiseuille flow, where viscosity balances the body force, is then exact in
+    the B-spline space). The second derivatives are taken cell by cell (C^1 B-splines:
+    exact; Q1: its mixed derivative only). The inertia is the step's mean acceleration
     ``(v_{n+1} - v_n) / dt``: with the trapezoidal rule the end-point ``a_{n+1}``
-    alternates in sign from step to step, and fed into the pressure it made the
-    pressure in the corner of the dam break grow by a factor -2 per step from 0.13 s.
+    alternates in sign from step to step, and fed into the pressure it grows a
+    sign-alternating pressure (README, "Where fempm departs from method.md").
     """
     du, p = ufl.split(s.grid("U"))
     _, q = s.test
@@ -169,7 +159,7 @@ def pspg(s):
     dt, beta, mu = s.constant("dt"), s.constant("beta"), s.constant("mu")
     tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), dt, s.h, mu / rho)
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
-    v_new = newmark_velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
+    v_new = newmark.velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
     residual = rho * (v_new - v_n) / dt + ufl.grad(p) - rho * s.constant("gravity")
     if switched_on(mu):
         residual = residual - ufl.div(2 * mu * eps(v_new))

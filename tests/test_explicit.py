@@ -15,7 +15,8 @@ import dambreak_explicit  # noqa: E402
 
 import fempm  # noqa: E402
 from fempm.errors import InputError  # noqa: E402
-from fempm.explicit import ExplicitOptions, ExplicitSolver, stable_time_step  # noqa: E402
+from fempm.explicit import ExplicitScheme, ExplicitSolver, stable_time_step  # noqa: E402
+from fempm.options import Controls, Physics  # noqa: E402
 from fempm.formsfile import load_forms  # noqa: E402
 from fempm.errors import SimulationDiverged  # noqa: E402
 from fempm.output import gather_particles  # noqa: E402
@@ -68,8 +69,8 @@ def test_a_step_away_from_the_walls_keeps_the_momentum(comm):
     water.seed(fempm.Rectangle((0.25, 0.25), (0.75, 0.625)), per_cell=2, density=RHO)
     rng = np.random.default_rng(7)
     water["velocity"][:] = rng.normal(scale=0.1, size=(len(water), 2))
-    solver = ExplicitSolver(fempm.BSpline2(grid), water, ExplicitOptions(
-        sound_speed=10.0, gravity=(0.0, 0.0), min_support_fraction=0.0))
+    solver = ExplicitSolver(fempm.BSpline2(grid), water, Physics(gravity=(0.0, 0.0)), ExplicitScheme(sound_speed=10.0),
+                            Controls(min_support_fraction=0.0))
     before = total(comm, (water["mass"][:, None] * water["velocity"]).sum(axis=0))
     for _ in range(5):
         solver.step()
@@ -89,8 +90,8 @@ def test_hydrostatic_column_bottom_pressure(comm):
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (WIDTH, 0.584), (10, 40))
     water = fempm.Particles(grid)
     water.seed(fempm.Rectangle((0.0, 0.0), (WIDTH, HEIGHT)), per_cell=2, density=RHO)
-    options = ExplicitOptions(sound_speed=C0, max_speed=sqrt(2 * G * HEIGHT))
-    solver = ExplicitSolver(fempm.BSpline2(grid), water, options)
+    scheme = ExplicitScheme(sound_speed=C0, max_speed=sqrt(2 * G * HEIGHT))
+    solver = ExplicitSolver(fempm.BSpline2(grid), water, scheme=scheme)
     ratios = []
     while solver.time < 0.4:
         solver.step()
@@ -132,7 +133,7 @@ def test_one_and_all_ranks_move_the_particles_alike():
         grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (0.584, 0.584), (40, 40))
         water = fempm.Particles(grid)
         water.seed(fempm.Rectangle((0.0, 0.0), (WIDTH, 1.5 * HEIGHT)), per_cell=2, density=RHO)
-        solver = ExplicitSolver(fempm.BSpline2(grid), water, ExplicitOptions(sound_speed=C0, max_speed=3.0))
+        solver = ExplicitSolver(fempm.BSpline2(grid), water, scheme=ExplicitScheme(sound_speed=C0, max_speed=3.0))
         for _ in range(100):
             solver.step()
         states[name] = gather_particles(water, ("pressure",))  # sorted by id, on rank 0
@@ -162,7 +163,7 @@ def test_the_divergence_names_time_step_and_cause(comm):
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (0.584, 0.584), (40, 40))
     water = fempm.Particles(grid)
     water.seed(fempm.Rectangle((0.0, 0.0), (WIDTH, HEIGHT)), per_cell=2, density=RHO)
-    solver = ExplicitSolver(fempm.BSpline2(grid), water, ExplicitOptions(bulk_modulus=2e9, dt=1e-4))
+    solver = ExplicitSolver(fempm.BSpline2(grid), water, scheme=ExplicitScheme(bulk_modulus=2e9, dt=1e-4))
     with pytest.raises(SimulationDiverged) as caught:
         for _ in range(10):
             solver.step()
@@ -174,16 +175,25 @@ def test_default_time_step_is_the_stated_cfl_condition(comm):
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (0.584, 0.584), (40, 40))
     water = fempm.Particles(grid)
     water.seed(fempm.Rectangle((0.0, 0.0), (WIDTH, HEIGHT)), per_cell=2, density=RHO)
-    solver = ExplicitSolver(fempm.BSpline2(grid), water, ExplicitOptions(bulk_modulus=2e9, max_speed=2.0, cfl=0.5))
+    solver = ExplicitSolver(fempm.BSpline2(grid), water, scheme=ExplicitScheme(bulk_modulus=2e9, max_speed=2.0, cfl=0.5))
     assert solver.sound_speed == pytest.approx(sqrt(2e9 / RHO))
-    assert solver.options.dt == pytest.approx(0.5 * grid.h / (sqrt(2e6) + 2.0))
+    assert solver.dt == pytest.approx(0.5 * grid.h / (sqrt(2e6) + 2.0))
     assert stable_time_step(0.01, 1.0, 0.0, 1.0, cfl=1.0) == pytest.approx(0.01**2 / 4)  # diffusion bound
 
 
 @pytest.mark.parametrize("option, value, word", [
     ("dt", -1.0, "dt"), ("cfl", 1.5, "cfl"), ("bulk_modulus", 0.0, "bulk_modulus"),
-    ("sound_speed", -3.0, "sound_speed"), ("walls", "sticky", "walls"), ("pic_blend", 2.0, "pic_blend"),
+    ("sound_speed", -3.0, "sound_speed"), ("pic_blend", 2.0, "pic_blend"),
 ])
 def test_bad_options_name_the_option(option, value, word):
     with pytest.raises(InputError, match=word):
-        ExplicitOptions(**{option: value}).check()
+        ExplicitScheme(**{option: value}).check()
+
+
+@pytest.mark.parametrize("walls, word", [("sticky", "walls.left must be one of"), ("outflow", "walls.left must be 'slip' or 'no-slip'")])
+def test_walls_the_explicit_scheme_cannot_hold_are_refused(comm, walls, word):
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 1.0), 0.25)
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.0, 0.0), (0.5, 0.5)), per_cell=2, density=RHO)
+    with pytest.raises(InputError, match=word):
+        ExplicitSolver(fempm.BSpline2(grid), water, Physics(walls=walls))

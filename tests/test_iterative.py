@@ -30,11 +30,11 @@ def test_iterative_solver_reproduces_the_direct_step():
     for kind in ("direct", "iterative"):
         solver = build_solver(replace(scene, solver=replace(scene.solver, linear=kind)), comm)
         solver.step()
-        owned = solver.space.numbering.num_owned
-        steps[kind] = {name: solver.U.field(name)[:owned].copy() for name in ("u", "p")}
-        pc = solver.linear_solver.ksp.getPC()
-        steps[kind]["solver"] = (solver.linear_solver.ksp.getType(), pc.getType(),
-                                 solver.linear_solver.ksp.getIterationNumber())
+        system = solver.system
+        owned = system.space.numbering.num_owned
+        steps[kind] = {name: system.U.field(name)[:owned].copy() for name in ("u", "p")}
+        ksp = system.linear_solver.ksp
+        steps[kind]["solver"] = (ksp.getType(), ksp.getPC().getType(), ksp.getIterationNumber())
     ksp_type, pc_type, iterations = steps["iterative"]["solver"]
     assert (ksp_type, pc_type) == ("fgmres", "fieldsplit") and iterations > 2
     assert steps["direct"]["solver"][0] == "preonly"

@@ -46,13 +46,14 @@ def test_water_falling_on_a_pillar_splits_around_it_and_never_enters():
     solver = build_solver(scene, comm)
     grid = solver.grid
     assert np.array_equal(np.flatnonzero(grid.blocked), [i + 20 * j for j in range(5) for i in (9, 10)])
-    blocked_dofs = solver.space.cell_dofs("u", np.flatnonzero(grid.blocked))
-    owned = solver.space.local_to_global[: solver.space.num_owned_dofs]
+    space = solver.system.space
+    blocked_dofs = space.cell_dofs("u", np.flatnonzero(grid.blocked))
+    owned = space.local_to_global[: space.num_owned_dofs]
     at_obstacle = np.isin(owned, blocked_dofs)
     for _ in range(120):
         solver.step()
         assert not grid.blocked[solver.particles.cell].any()
-        assert np.all(solver.U.vector.array[: solver.space.num_owned_dofs][at_obstacle] == 0.0)
+        assert np.all(solver.system.U.vector.array[: space.num_owned_dofs][at_obstacle] == 0.0)
     x = solver.particles.x
     low = x[:, 1] < 0.075
     count = lambda mask: comm.allreduce(int(mask.sum()))  # noqa: E731
@@ -88,11 +89,11 @@ def test_a_no_slip_floor_holds_the_tangential_velocity_and_a_slip_floor_does_not
     for bottom in ("slip", "no-slip"):
         scene = scene_from_text(scene_text.replace('bottom = "slip"', f'bottom = "{bottom}"'), "dambreak.toml")
         solver = build_solver(scene, comm)
-        assert solver.options.wall_conditions() == {"left": "slip", "right": "slip", "bottom": bottom, "top": "slip"}
+        assert solver.physics.wall_conditions() == {"left": "slip", "right": "slip", "bottom": bottom, "top": "slip"}
         for _ in range(20):
             solver.step()
-        floor = np.isin(solver.space.local_to_global[: solver.space.num_owned_dofs],
-                        solver.space.wall_dofs("u", 0, "b"))
+        space = solver.system.space
+        floor = np.isin(space.local_to_global[: space.num_owned_dofs], space.wall_dofs("u", 0, "b"))
         floor_speed[bottom] = comm.allreduce(
-            float(np.abs(solver.U.vector.array[: solver.space.num_owned_dofs][floor]).max(initial=0.0)), op=MPI.MAX)
+            float(np.abs(solver.system.U.vector.array[: space.num_owned_dofs][floor]).max(initial=0.0)), op=MPI.MAX)
     assert floor_speed["no-slip"] == 0.0 and floor_speed["slip"] > 1e-5

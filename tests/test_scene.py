@@ -151,9 +151,10 @@ def test_dambreak_scene_is_the_seed_setup(comm):
     seeded.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=2, density=1000.0)
     assert solver.grid.h == grid.h and solver.particles.global_count() == 800
     assert np.array_equal(solver.particles.x, seeded.x) and np.array_equal(solver.particles.id, seeded.id)
-    o = solver.options
-    assert (o.dt, o.viscosity, o.alpha, o.pspg, o.pic_blend, o.gravity) == (1e-3, 1e-3, 0.1, True, 0.1, (0.0, -9.81))
-    assert set(o.wall_conditions().values()) == {"slip"} and solver.basis.name == "B-spline"
+    physics, scheme = solver.physics, solver.scheme
+    assert (scheme.dt, physics.viscosity, scheme.alpha, scheme.pspg, scheme.pic_blend, physics.gravity) == \
+        (1e-3, 1e-3, 0.1, True, 0.1, (0.0, -9.81))
+    assert set(physics.wall_conditions().values()) == {"slip"} and solver.basis.name == "B-spline"
     assert math.isclose(scene.time.end, 1.0)
 
 

@@ -21,8 +21,8 @@ from fempm.verification import rates  # noqa: E402
 
 @pytest.mark.mpi
 def test_hydrostatic_pressure_mpm_within_one_percent_fem_exact():
-    mpm = hydrostatic.solve("MPM", "B-spline", 20, 0.001, ppc=2)  # h = H/20, 4 particles per cell
-    fem = hydrostatic.solve("FEM-only", "B-spline", 20, 0.001)
+    mpm = hydrostatic.solve("MPM", "bspline", 20, 0.001, ppc=2)  # h = H/20, 4 particles per cell
+    fem = hydrostatic.solve("FEM-only", "bspline", 20, 0.001)
     assert abs(mpm.extra["bottom_error"]) < 0.01
     assert mpm.error < 0.01  # the whole centre line, relative to rho g H
     assert mpm.extra["max_speed"] < 1e-3
@@ -31,8 +31,8 @@ def test_hydrostatic_pressure_mpm_within_one_percent_fem_exact():
 
 @pytest.mark.mpi
 def test_steady_poiseuille_mpm_one_percent_fem_exact_and_mpm_converges():
-    (fem,) = poiseuille.solve("FEM-only", "B-spline", 16, 0.01, times=(poiseuille.STEADY,))
-    mpm = [poiseuille.solve("MPM", "B-spline", n, 0.01, times=(poiseuille.STEADY,))[0] for n in (8, 16)]
+    (fem,) = poiseuille.solve("FEM-only", "bspline", 16, 0.01, times=(poiseuille.STEADY,))
+    mpm = [poiseuille.solve("MPM", "bspline", n, 0.01, times=(poiseuille.STEADY,))[0] for n in (8, 16)]
     assert fem.error < 1e-3  # the parabola lies in the B-spline space: ~1e-9 measured
     assert mpm[1].error < 0.01
     (rate,) = rates([1 / 8, 1 / 16], [r.error for r in mpm])
@@ -43,7 +43,7 @@ def test_steady_poiseuille_mpm_one_percent_fem_exact_and_mpm_converges():
 @pytest.mark.mpi
 @pytest.mark.parametrize("method", ["MPM", "FEM-only"])
 def test_couette_start_up_within_two_percent_of_the_series(method):
-    (row,) = couette.solve(method, "B-spline", 16, 0.001, times=(couette.TRANSIENT,))
+    (row,) = couette.solve(method, "bspline", 16, 0.001, times=(couette.TRANSIENT,))
     assert row.status == "completed"
     assert row.error < 0.02
 

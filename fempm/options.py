@@ -1,0 +1,162 @@
+"""What an implicit run is given, in three plain-data parts (no heavy imports: scenes use them).
+
+* :class:`Physics` -- the flow: viscosity, gravity, the condition on each side of the grid;
+* :class:`Scheme` -- the discretisation of method.md: time step, Newmark, volume correction,
+  PSPG, the transfer, the forms file;
+* :class:`Controls` -- numerical safeguards and thresholds: Newton, which functions enter the
+  solve, where the matrix has rows, when a run is declared diverged, PETSc options.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fempm.errors import InputError
+
+__all__ = ["Controls", "Physics", "SIDES", "Scheme", "WALLS"]
+
+SIDES = ("left", "right", "bottom", "top")
+#: The conditions a side may have (see :class:`Physics`).
+WALLS = ("slip", "no-slip", "outflow", "open")
+#: ``Controls.matrix_region = "auto"`` keeps rows only near the water above this many cells.
+FLUID_REGION_CELLS = 100_000
+
+
+@dataclass
+class Physics:
+    """The flow (SI units).
+
+    Attributes:
+        viscosity: dynamic viscosity mu.
+        gravity: body acceleration.
+        walls: one condition of :data:`WALLS` for all sides, or a mapping of side to condition
+            (sides not named are slip): ``slip`` (zero normal velocity), ``no-slip`` (zero
+            velocity), ``outflow`` (zero tangential velocity, normal traction free: the end of a
+            channel whose flow is fully developed there) or ``open`` (traction free). Material that
+            crosses an outflow or open side leaves the grid. Cells blocked by obstacles are no-slip.
+        wall_speeds: tangential speed of moving no-slip sides (m/s), along +x on the bottom and top,
+            along +y on the left and right (a lid-driven cavity: ``{"top": 1.0}``).
+        recycle: with outflow on the left and right, a particle leaving through one re-enters
+            through the other at the same height: an endless channel on a grid that is not periodic.
+    """
+
+    viscosity: float = 1.0e-3
+    gravity: tuple[float, float] = (0.0, -9.81)
+    walls: str | dict = "slip"
+    wall_speeds: dict = field(default_factory=dict)
+    recycle: bool = False
+
+    def check(self):
+        """Raise :class:`InputError` naming the first unacceptable value."""
+        if not (np.isfinite(self.viscosity) and self.viscosity >= 0):
+            raise InputError(f"viscosity must be >= 0, got {self.viscosity}")
+        if not (len(self.gravity) == 2 and np.all(np.isfinite(self.gravity))):
+            raise InputError(f"gravity must be two finite numbers, got {self.gravity}")
+        conditions = self.wall_conditions()
+        for side, kind in conditions.items():
+            if side not in SIDES:
+                raise InputError(f"walls: unknown side {side!r}; the sides are {SIDES}")
+            if kind not in WALLS:
+                raise InputError(f"walls.{side} must be one of {WALLS}, got {kind!r}")
+        if self.recycle and {conditions["left"], conditions["right"]} != {"outflow"}:
+            raise InputError("recycle needs outflow on the left and the right, got "
+                             f"{conditions['left']!r} and {conditions['right']!r}")
+        for side, speed in self.wall_speeds.items():
+            if conditions.get(side) != "no-slip":
+                raise InputError(f"wall_speeds.{side}: only a no-slip side can move, but {side!r} is "
+                                 f"{conditions.get(side, 'not a side')!r}")
+            if not np.isfinite(speed):
+                raise InputError(f"wall_speeds.{side} must be a finite speed, got {speed}")
+
+    def wall_conditions(self) -> dict[str, str]:
+        """The condition on each side, ``{"left": "slip", ...}``."""
+        if isinstance(self.walls, str):
+            return dict.fromkeys(SIDES, self.walls)
+        return {**dict.fromkeys(SIDES, "slip"), **self.walls}
+
+    @property
+    def closed(self) -> bool:
+        """No side lets material out (no outflow or open side)."""
+        return not {"outflow", "open"} & set(self.wall_conditions().values())
+
+
+@dataclass
+class Scheme:
+    """The implicit scheme of method.md (SI units).
+
+    Attributes:
+        dt: time step.
+        beta, gamma: Newmark parameters (1/4, 1/2: the trapezoidal rule).
+        alpha: volume-correction factor of method.md eq. (3), 0 <= alpha <= 1 (0: left out).
+        pspg: PSPG stabilisation (method.md: without it the run diverges).
+        pic_blend: share of PIC in the FLIP update of the particles, 0 (FLIP) to 1 (PIC).
+        forms: the weak forms, a file of ``forms/`` by bare name or a path to a ``.py`` file.
+    """
+
+    dt: float = 1.0e-3
+    beta: float = 0.25
+    gamma: float = 0.5
+    alpha: float = 0.1
+    pspg: bool = True
+    pic_blend: float = 0.1
+    forms: str | Path = "incompressible"
+
+    def check(self):
+        """Raise :class:`InputError` naming the first unacceptable value."""
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise InputError(f"dt must be positive, got {self.dt}")
+        if not (0 < self.beta <= 0.5 and 0 < self.gamma <= 1):
+            raise InputError(f"Newmark needs 0 < beta <= 1/2 and 0 < gamma <= 1, got {self.beta}, {self.gamma}")
+        if not 0 <= self.alpha <= 1:
+            raise InputError(f"alpha (volume correction) must be in [0, 1], got {self.alpha}")
+        if not 0 <= self.pic_blend <= 1:
+            raise InputError(f"pic_blend must be in [0, 1], got {self.pic_blend}")
+
+
+@dataclass
+class Controls:
+    """Numerical safeguards and thresholds; each scheme uses those that apply to it.
+
+    Attributes:
+        newton_rtol, newton_max_it: Newton stops when ||R|| <= rtol ||R_0|| (implicit).
+        min_support_fraction: basis functions whose support holds less material than this fraction
+            of ``rho int N_i dx`` are left out of the solve, held at rest: they would only add
+            near-singular rows.
+        min_pressure_support: the pressure of functions with less material than this fraction, or
+            fewer particles in their support than a third of the functions per cell, is held at zero:
+            the free-surface condition p = 0 where a function barely touches water (after Kularathna
+            & Soga 2017).
+        matrix_region: ``"grid"``: the matrix has a row for every function (fixed sparsity);
+            ``"fluid"``: rows only near the water, rebuilt when the water leaves them; ``"auto"``:
+            fluid above :data:`FLUID_REGION_CELLS` cells.
+        pressure_limit: Pa; a pressure beyond it stops the run as diverged (each scheme says how;
+            ``None``: the scheme's default).
+        energy_gain_limit: a step after which the mechanical energy stands more than this fraction
+            of its start above its lowest value so far is diverged ("energy growth": gravity and
+            walls at rest only take energy away). ``None``: not checked.
+        petsc_options: PETSc options under the prefix ``fempm_``.
+    """
+
+    newton_rtol: float = 1e-8
+    newton_max_it: int = 8
+    min_support_fraction: float = 1e-3
+    min_pressure_support: float = 0.05
+    matrix_region: str = "auto"
+    pressure_limit: float | None = None
+    energy_gain_limit: float | None = 0.25
+    petsc_options: dict = field(default_factory=dict)
+
+    def check(self):
+        """Raise :class:`InputError` naming the first unacceptable value."""
+        if self.matrix_region not in ("grid", "fluid", "auto"):
+            raise InputError(f"matrix_region must be 'grid', 'fluid' or 'auto', got {self.matrix_region!r}")
+        if self.energy_gain_limit is not None and not self.energy_gain_limit > 0:
+            raise InputError(f"energy_gain_limit must be positive or None, got {self.energy_gain_limit}")
+        if self.pressure_limit is not None and not self.pressure_limit > 0:
+            raise InputError(f"pressure_limit must be positive or None, got {self.pressure_limit}")
+        if not (self.newton_rtol > 0 and self.newton_max_it >= 1):
+            raise InputError(f"Newton needs rtol > 0 and at least one iteration, got {self.newton_rtol}, "
+                             f"{self.newton_max_it}")

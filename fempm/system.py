@@ -1,0 +1,153 @@
+"""What an implicit step solves on the grid, shared by the MPM and the FEM-only reference.
+
+:class:`GridSystem` holds the unknowns ``U = (du, p)``, the grid fields the forms read
+(``grid_velocity`` v_n, ``grid_acceleration`` a_n, ``smoothed_density``), the constants of the
+forms, the walls and free dofs, and solves ``R(U) = 0`` by Newton's method with the Jacobian
+UFL derives (:class:`StepForms`, compiled once).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import ufl
+import ufl.algorithms
+
+from fempm import newmark
+from fempm.bases import Basis
+from fempm.formsfile import load_forms
+from fempm.linear import LinearSolver, SolveFailed
+from fempm.options import Controls, Physics, Scheme
+from fempm.space import GridFunction, Space
+from fempm.timing import PhaseTimes
+from fempm.walls import FreeDofs, Walls
+
+__all__ = ["GridSystem", "StepForms"]
+
+
+class StepForms:
+    """The ``residual`` of a forms file and its Jacobian ``dR/dU``, each compiled once by ``compile``
+    (a function of a form builder returning an assembled form: particle or Gauss quadrature).
+
+    Attributes:
+        linear: R is affine in U (the shipped forms), so one Newton iteration solves the step.
+    """
+
+    def __init__(self, forms_file, compile: Callable):
+        forms = load_forms(forms_file, required=("residual",))
+        self.residual = compile(forms.residual)
+        self.jacobian = compile(lambda s: ufl.derivative(forms.residual(s), s.grid("U")))
+        unknown = next(c for c, (kind, name) in self.jacobian.symbols.used.items() if name == "U")
+        expanded = ufl.algorithms.expand_derivatives(self.jacobian.ufl_form)
+        self.linear = unknown not in expanded.coefficients()
+
+
+class GridSystem:
+    """The unknowns, grid fields, constants, constraints and Newton solve of an implicit step.
+
+    Args:
+        basis: the grid basis.
+        physics, scheme, controls: see :mod:`fempm.options`.
+        convection: the constant ``convection`` of the forms: 1 on a fixed grid, 0 in the MPM
+            (whose grid moves with the material for the step; the term is then left out).
+        timings: where the solve's phases (assemble, solve) add their wall time.
+
+    Attributes:
+        space: ``{"u": 2, "p": 1}`` on the basis; ``vector_space``, ``scalar_space`` likewise.
+        U: the unknowns of the step, ``(du, p)``.
+        fields: the grid functions the forms read, by name (``U`` among them).
+        velocity, pressure: ``v_{n+1}`` and ``p`` of the last step on the grid (see :meth:`end_state`).
+        constants: the forms' constants by name.
+        walls, free: the held wall dofs and the free-dof selection.
+        newton_iterations: Newton iterations so far.
+    """
+
+    def __init__(self, basis: Basis, physics: Physics, scheme: Scheme, controls: Controls, convection: float,
+                 timings: PhaseTimes):
+        self.basis, self.grid, self.comm = basis, basis.grid, basis.grid.comm
+        self.physics, self.scheme, self.controls, self.timings = physics, scheme, controls, timings
+        self.space = Space(basis, {"u": 2, "p": 1})
+        self.vector_space = Space(basis, {"v": 2})
+        self.scalar_space = Space(basis, {"m": 1})
+        self.U = GridFunction(self.space, "U")
+        self.fields = {
+            "U": self.U,
+            "grid_velocity": GridFunction(self.vector_space, "grid_velocity"),
+            "grid_acceleration": GridFunction(self.vector_space, "grid_acceleration"),
+            "smoothed_density": GridFunction(self.scalar_space, "smoothed_density"),
+        }
+        self.velocity = GridFunction(self.vector_space, "velocity")
+        self.pressure = GridFunction(self.scalar_space, "pressure")
+        self.constants = {
+            "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
+            "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.alpha, "pspg": float(scheme.pspg),
+            "convection": float(convection),
+        }
+        self.walls = Walls(self.space, physics)
+        self.free = FreeDofs(self.space, self.walls)
+        self.linear_solver = LinearSolver(self.comm, "fempm_", controls.petsc_options, fields=self.space.fields)
+        self.newton_iterations = 0
+        self._R = self.space.create_vector()
+        self._delta, self._delta_of = None, None
+
+    def impose_walls(self):
+        """v_n and a_n on the held wall dofs: the walls' own (so ``v_{n+1} = v_wall``, ``a_{n+1} = 0``)."""
+        self.walls.impose(self.fields["grid_velocity"], self.fields["grid_acceleration"])
+
+    def solve(self, forms: StepForms, free: np.ndarray, J, particles=None):
+        """Newton on R(U) = 0 over the free dofs, from U = 0 and ``du = dt v_wall`` on the held wall
+        dofs (which the corrections leave alone); ``J`` is the matrix to assemble into (None: the
+        forms' own).
+
+        One iteration, and no second residual, when R is affine in U.
+
+        Raises:
+            SolveFailed: the linear solve failed, U is not finite, or Newton did not converge.
+        """
+        c = self.controls
+        U = self.U.vector
+        U.array[:] = 0.0
+        U.array[self.walls.positions] = self.scheme.dt * self.walls.values
+        U.scatter_forward()
+        r0 = norm = None
+        for iteration in range(c.newton_max_it):
+            with self.timings("assemble"):
+                R = forms.residual.assemble_vector(particles, self._R)
+                if not forms.linear:
+                    norm = self._free_norm(R)
+                    r0 = norm if r0 is None else r0
+                    if iteration > 0 and norm <= c.newton_rtol * max(r0, 1e-300):
+                        break
+                J = forms.jacobian.assemble_matrix(particles, J)
+            if self._delta_of is not J:  # a new matrix (the first, or a widened region)
+                self._delta, self._delta_of = J.createVecLeft(), J
+            with self.timings("solve"):
+                R.petsc_vec.scale(-1.0)
+                delta = self.linear_solver.solve(J, R.petsc_vec, free, self._delta)
+                U.array[: self.space.num_owned_dofs] += delta.getArray(readonly=True)
+                U.scatter_forward()
+            self.newton_iterations += 1
+            if not np.all(np.isfinite(U.array)):
+                raise SolveFailed("the solution is not finite")
+            if forms.linear:
+                break
+        else:
+            raise SolveFailed(f"Newton did not converge in {c.newton_max_it} iterations "
+                              f"(|R| = {norm:.3e}, |R0| = {r0:.3e})")
+
+    def _free_norm(self, R) -> float:
+        local = R.array[: self.space.num_owned_dofs][self.free.mask]
+        return float(np.sqrt(self.comm.allreduce(np.dot(local, local))))
+
+    def end_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """``v_{n+1}`` and ``a_{n+1}`` on the grid from the solved ``du`` (Newmark); keeps ``v_{n+1}``
+        and the pressure in :attr:`velocity` and :attr:`pressure`."""
+        s = self.scheme
+        du = self.U.field("u")
+        v, a = self.fields["grid_velocity"].values, self.fields["grid_acceleration"].values
+        a_new = newmark.acceleration(du, v, a, s.dt, s.beta)
+        v_new = newmark.velocity(du, v, a, s.dt, s.beta, s.gamma, a_new=a_new)
+        self.velocity.values[:] = v_new
+        self.pressure.values[:] = self.U.field("p")
+        return v_new, a_new
