@@ -75,20 +75,19 @@ class EulerianSolver(Stepper):
         self.check_pressure = PressureCheck(self.grid.comm, limit, limit)
         self.max_divergence = 0.0
 
-    def step(self):
-        """Advance by one time step (raises :class:`~fempm.errors.SimulationDiverged`)."""
+    def advance(self, dt: float):
+        """One step: v_n, a_n from the last step, Newton, v_{n+1} and a_{n+1} kept."""
         s = self.system
-        with self.advancing():
-            with self.timings("project"):
-                s.fields["grid_velocity"].values[:] = s.velocity.values
-                s.fields["grid_acceleration"].values[:] = self.acceleration.values
-                s.impose_walls()
-                free = s.free.select(np.ones(s.space.num_owned_dofs, dtype=bool))
-            s.solve(self.forms, free, None)
-            with self.timings("update"):
-                _, a_new = s.end_state()
-                self.acceleration.values[:] = a_new
-                self.check_pressure(s.U.field("p")[: s.scalar_space.numbering.num_owned])
+        with self.timings("project"):
+            s.fields["grid_velocity"].values[:] = s.velocity.values
+            s.fields["grid_acceleration"].values[:] = self.acceleration.values
+            s.impose_walls()
+            free = s.free.select(np.ones(s.space.num_owned_dofs, dtype=bool))
+        s.solve(self.forms, free, None)
+        with self.timings("update"):
+            _, a_new = s.end_state()
+            self.acceleration.values[:] = a_new
+            self.check_pressure(s.U.field("p")[: s.scalar_space.numbering.num_owned], dt)
 
 
 class _GaussAssembly:

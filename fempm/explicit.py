@@ -175,22 +175,21 @@ class ExplicitSolver(Stepper):
         self.max_divergence = 0.0
 
     # -- one step ------------------------------------------------------------------------
-    def step(self):
-        """Advance the particles by one time step (raises :class:`~fempm.errors.SimulationDiverged`)."""
-        with self.advancing():
-            with self.timings("project"):
-                momentum = self.project()
-            with self.timings("forces"):
-                force = self.forces()
-            with self.timings("grid"):
-                v_old, v_new = self.update_grid(momentum, force)
-            with self.timings("update"):
-                self.update_particles(v_old, v_new)
-            with self.timings("stress"):
-                x_old = self.update_stress()
-            self._stop_if_diverged(x_old)
-            with self.timings("relocate"):
-                self.particles.relocate()
+    def advance(self, dt: float):
+        """One step: P2G, forces, grid update, G2P, stress (MUSL), relocation."""
+        with self.timings("project"):
+            momentum = self.project()
+        with self.timings("forces"):
+            force = self.forces()
+        with self.timings("grid"):
+            v_old, v_new = self.update_grid(momentum, force)
+        with self.timings("update"):
+            self.update_particles(v_old, v_new)
+        with self.timings("stress"):
+            x_old = self.update_stress()
+        self._stop_if_diverged(x_old)
+        with self.timings("relocate"):
+            self.particles.relocate()
 
     # -- phases ------------------------------------------------------------------------
     def project(self) -> np.ndarray:

@@ -24,9 +24,9 @@ from fempm.options import Controls, Physics, Scheme
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.region import MatrixRegion
-from fempm.safeguards import EnergyWatch, PressureCheck, impact_pressure
+from fempm.safeguards import EnergyWatch, PressureCheck, impact_impulse
 from fempm.space import GridFunction, Space
-from fempm.stepper import Stepper
+from fempm.stepper import StepControl, Stepper
 from fempm.system import GridSystem, StepForms
 
 __all__ = ["ImplicitSolver"]
@@ -54,7 +54,9 @@ class ImplicitSolver(Stepper):
         physics, scheme, controls = physics or Physics(), scheme or Scheme(), controls or Controls()
         for part in (physics, scheme, controls):
             part.check()
-        super().__init__(scheme.dt)
+        control = (StepControl(scheme.courant, scheme.dt, controls.step_growth, controls.step_retries)
+                   if scheme.courant else None)
+        super().__init__(scheme.dt, control)
         self.basis, self.grid, self.particles = basis, basis.grid, particles
         self.physics, self.scheme, self.controls = physics, scheme, controls
         if "pressure" not in particles.fields:
@@ -73,17 +75,17 @@ class ImplicitSolver(Stepper):
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
 
-    # -- one step ------------------------------------------------------------------------
-    def step(self):
-        """Advance by one time step (raises :class:`~fempm.errors.SimulationDiverged`)."""
-        with self.advancing():
-            with self.timings("project"):
-                free = self.project()
-            self.system.solve(self.forms, free, self.region.matrix, self.particles)
-            with self.timings("update"):
-                self.update()
-            with self.timings("relocate"):
-                self.particles.relocate()
+    # -- one step (Stepper.step chooses dt, retries, moves the clock) ---------------------------
+    def advance(self, dt: float):
+        """One step of size ``dt``: P2G, Newton, G2P, relocation."""
+        self.system.set_step(dt)
+        with self.timings("project"):
+            free = self.project()
+        self.system.solve(self.forms, free, self.region.matrix, self.particles)
+        with self.timings("update"):
+            self.update()
+        with self.timings("relocate"):
+            self.particles.relocate()
 
     def project(self) -> np.ndarray:
         """P2G: grid velocity and acceleration, smoothed density; returns the free dofs.
@@ -141,21 +143,41 @@ class ImplicitSolver(Stepper):
         grad_v = transfer.gradient(jets[:, :, g.space.field_slice("v")], self.grid.h)
         divergence = np.abs(grad_v[:, 0, 0] + grad_v[:, 1, 1]).max(initial=0.0)
         self.max_divergence = self.grid.comm.allreduce(float(divergence), op=MPI.MAX)
-        self.check_pressure(p["pressure"])
+        self.check_pressure(p["pressure"], s.dt)
         if self.check_energy:
-            self.check_energy()
+            self.check_energy(s.dt)
+
+    # -- what an adaptive step needs ---------------------------------------------------------
+    def fastest(self) -> float:
+        """The largest particle speed on all ranks."""
+        speed = np.sqrt(np.einsum("ij,ij->i", self.particles["velocity"], self.particles["velocity"]))
+        return self.grid.comm.allreduce(float(speed.max(initial=0.0)), op=MPI.MAX)
+
+    def cell_size(self) -> float:
+        """The grid's cell size."""
+        return self.grid.h
+
+    def save(self):
+        """The particles, the walls' stop count and the energy watch's lowest energy."""
+        return (self.particles.state(), self.walls.stops, self.check_energy.lowest if self.check_energy else None)
+
+    def restore(self, saved):
+        """Back to a :meth:`save`."""
+        particles, self.walls.stops, lowest = saved
+        self.particles.restore(particles)
+        if self.check_energy:
+            self.check_energy.lowest = lowest
 
     # -- safeguards ------------------------------------------------------------------------
     def _pressure_check(self) -> PressureCheck:
         """A tension above the pressure limit (the sign-alternating pressure of an unstable step)
-        or a compression above it plus an impact's (:func:`~fempm.safeguards.impact_pressure`)
-        stops the run. Default limit: 20 rho g times the grid's height."""
-        grid, p = self.grid, self.particles
+        or a compression above it plus an impact's (:func:`~fempm.safeguards.impact_impulse` over
+        the step) stops the run. Default limit: 20 rho g times the grid's height."""
+        grid = self.grid
         limit = self.controls.pressure_limit or 20 * 1000.0 * 9.81 * (grid.upper[1] - grid.lower[1])
-        start = grid.comm.allreduce(float(np.linalg.norm(p["velocity"], axis=1).max(initial=0.0)), op=MPI.MAX)
         extent = float(np.linalg.norm(grid.upper - grid.lower))
-        impact = impact_pressure(self._reference_density, start, self.physics.gravity, extent, self.dt)
-        return PressureCheck(grid.comm, limit, limit + impact)
+        impulse = impact_impulse(self._reference_density, self.fastest(), self.physics.gravity, extent)
+        return PressureCheck(grid.comm, limit, limit, impulse)
 
     def _energy_watch(self) -> EnergyWatch | None:
         """The energy check, where it applies: a limit set, a closed box, walls at rest, no recycling,
@@ -163,5 +185,5 @@ class ImplicitSolver(Stepper):
         ph, limit = self.physics, self.controls.energy_gain_limit
         if limit is None or not ph.closed or ph.wall_speeds or ph.recycle:
             return None
-        watch = EnergyWatch(self.particles, ph.gravity, limit, self.dt)
+        watch = EnergyWatch(self.particles, ph.gravity, limit)
         return watch if watch.start > 0 else None

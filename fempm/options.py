@@ -88,7 +88,8 @@ class Scheme:
     """The implicit scheme of method.md (SI units).
 
     Attributes:
-        dt: time step.
+        dt: the time step; with ``courant``, the largest step.
+        courant: an adaptive step ``dt = C h / max |v_p|`` with this C (None: the step is ``dt``).
         beta, gamma: Newmark parameters (1/4, 1/2: the trapezoidal rule).
         alpha: volume-correction factor of method.md eq. (3), 0 <= alpha <= 1 (0: left out).
         pspg: PSPG stabilisation (method.md: without it the run diverges).
@@ -97,6 +98,7 @@ class Scheme:
     """
 
     dt: float = 1.0e-3
+    courant: float | None = None
     beta: float = 0.25
     gamma: float = 0.5
     alpha: float = 0.1
@@ -108,6 +110,8 @@ class Scheme:
         """Raise :class:`InputError` naming the first unacceptable value."""
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise InputError(f"dt must be positive, got {self.dt}")
+        if self.courant is not None and not (np.isfinite(self.courant) and 0 < self.courant <= 10):
+            raise InputError(f"courant must be in (0, 10] or None, got {self.courant}")
         if not (0 < self.beta <= 0.5 and 0 < self.gamma <= 1):
             raise InputError(f"Newmark needs 0 < beta <= 1/2 and 0 < gamma <= 1, got {self.beta}, {self.gamma}")
         if not 0 <= self.alpha <= 1:
@@ -134,6 +138,8 @@ class Controls:
             fluid above :data:`FLUID_REGION_CELLS` cells.
         pressure_limit: Pa; a pressure beyond it stops the run as diverged (each scheme says how;
             ``None``: the scheme's default).
+        step_growth: with an adaptive step, how much larger than the previous step a step may be.
+        step_retries: with an adaptive step, halvings of a failed step before the run is diverged.
         energy_gain_limit: a step after which the mechanical energy stands more than this fraction
             of its start above its lowest value so far is diverged ("energy growth": gravity and
             walls at rest only take energy away). ``None``: not checked.
@@ -147,6 +153,8 @@ class Controls:
     matrix_region: str = "auto"
     pressure_limit: float | None = None
     energy_gain_limit: float | None = 0.25
+    step_growth: float = 1.25
+    step_retries: int = 3
     petsc_options: dict = field(default_factory=dict)
 
     def check(self):

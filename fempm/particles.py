@@ -240,6 +240,18 @@ class Particles:
                        for name, a in self.fields.items()}
         self.relocate()
 
+    def state(self) -> dict:
+        """A copy of this rank's particles (fields, cells, reference coordinates, losses), for :meth:`restore`."""
+        return {"fields": {name: a.copy() for name, a in self.fields.items()}, "cell": self.cell.copy(),
+                "xi": self.xi.copy(), "lost": (self.lost_mass, self.lost_count)}
+
+    def restore(self, state: dict):
+        """Back to a :meth:`state` of these particles (on the same rank)."""
+        self.fields = {name: a.copy() for name, a in state["fields"].items()}
+        self.cell, self.xi = state["cell"].copy(), state["xi"].copy()
+        self.lost_mass, self.lost_count = state["lost"]
+        self.cache.clear()
+
     def _append(self, new: dict[str, np.ndarray]):
         for name in self.fields:
             self.fields[name] = np.concatenate([self.fields[name], new[name]])

@@ -12,29 +12,30 @@ from mpi4py import MPI
 from fempm import diagnostics
 from fempm.linear import SolveFailed
 
-__all__ = ["EnergyWatch", "PressureCheck", "impact_pressure"]
+__all__ = ["EnergyWatch", "PressureCheck", "impact_impulse"]
 
 
-def impact_pressure(density: float, start_speed: float, gravity, extent: float, dt: float) -> float:
-    """``rho U D / dt``: the pressure of water stopped by a wall within one step.
+def impact_impulse(density: float, start_speed: float, gravity, extent: float) -> float:
+    """``rho U D``: the pressure impulse of water stopped by a wall (Pa s).
 
     An incompressible fluid meeting a wall at the speed U takes a pressure impulse ``int p dt ~ rho U L``,
     L the length of the water behind the impact (Cooker & Peregrine 1995), all of it within the step
     that stops it. Bounds: U the fastest starting speed plus a free fall through the extent D, L <= D.
     """
     fall = np.sqrt(2 * np.linalg.norm(gravity) * extent)
-    return density * (start_speed + fall) * extent / dt
+    return density * (start_speed + fall) * extent
 
 
 class PressureCheck:
-    """Stops on a pressure that is not finite, a tension beyond ``tension_limit`` or a
-    compression beyond ``compression_limit`` (Pa); ``label`` names the failure in the message."""
+    """Stops on a pressure that is not finite, a tension beyond ``tension_limit`` or a compression
+    beyond ``compression_limit`` plus an impact's ``impulse / dt`` (Pa); ``label`` names the failure."""
 
-    def __init__(self, comm, tension_limit: float, compression_limit: float, label: str = "pressure oscillation"):
-        self.comm, self.label = comm, label
+    def __init__(self, comm, tension_limit: float, compression_limit: float, impulse: float = 0.0,
+                 label: str = "pressure oscillation"):
+        self.comm, self.label, self.impulse = comm, label, impulse
         self.tension_limit, self.compression_limit = tension_limit, compression_limit
 
-    def __call__(self, pressure: np.ndarray):
+    def __call__(self, pressure: np.ndarray, dt: float):
         low = self.comm.allreduce(float(pressure.min(initial=0.0)), op=MPI.MIN)
         high = self.comm.allreduce(float(pressure.max(initial=0.0)), op=MPI.MAX)
         if not np.isfinite(low + high):
@@ -42,8 +43,10 @@ class PressureCheck:
         if -low > self.tension_limit:
             raise SolveFailed(f"{self.label}: p reached {low:.3g} Pa, a tension beyond the limit "
                               f"{self.tension_limit:.3g} Pa")
-        if high > self.compression_limit:
-            raise SolveFailed(f"{self.label}: p reached {high:.3g} Pa, above the limit {self.compression_limit:.3g} Pa")
+        impact = self.impulse / dt
+        if high > self.compression_limit + impact:
+            raise SolveFailed(f"{self.label}: p reached {high:.3g} Pa, above the limit "
+                              f"{self.compression_limit + impact:.3g} Pa (of which an impact's {impact:.3g} Pa)")
 
 
 class EnergyWatch:
@@ -52,12 +55,12 @@ class EnergyWatch:
     at rest only take energy away, so a gain is the scheme injecting it (the "eruption" of a too
     large step)."""
 
-    def __init__(self, particles, gravity, gain_limit: float, dt: float):
-        self.particles, self.gravity, self.gain_limit, self.dt = particles, gravity, gain_limit, dt
+    def __init__(self, particles, gravity, gain_limit: float):
+        self.particles, self.gravity, self.gain_limit = particles, gravity, gain_limit
         self.datum = diagnostics.lowest_corner(particles.grid, gravity)
         self.start = self.lowest = diagnostics.mechanical_energy(particles, gravity, self.datum)
 
-    def __call__(self):
+    def __call__(self, dt: float):
         energy = diagnostics.mechanical_energy(self.particles, self.gravity, self.datum)
         self.lowest = min(self.lowest, energy)
         gain = (energy - self.lowest) / self.start
@@ -67,4 +70,4 @@ class EnergyWatch:
                                           op=MPI.MAX)
             raise SolveFailed(f"energy growth: the mechanical energy rose by {100 * gain:.0f} % of its start, "
                               f"which gravity and walls at rest cannot give; the step is too large for the flow "
-                              f"(fastest particle {largest:.3g} m/s, {largest * self.dt / grid.h:.1f} cells per step)")
+                              f"(fastest particle {largest:.3g} m/s, {largest * dt / grid.h:.1f} cells per step)")

@@ -1,38 +1,142 @@
-"""What the time loop sees of a scheme: its clock, its phase timings, and how a failed step ends a run."""
+"""What the time loop sees of a scheme: its clock, the choice of its step, and how a failed step ends.
+
+A scheme advances by :meth:`Stepper.step`: it takes the step size (fixed, or chosen by a
+:class:`StepControl` from the particle speeds), calls the scheme's :meth:`Stepper.advance`, and
+moves the clock. With a step control a failed step is retried from its saved state at half the
+size (Tesserae.jl's dam break does the same) before the run is declared diverged.
+"""
 
 from __future__ import annotations
 
-from contextlib import contextmanager
+import math
+from dataclasses import dataclass
 
-from fempm.errors import ParticleOutsideGridError, SimulationDiverged
+from fempm.errors import InputError, ParticleOutsideGridError, SimulationDiverged
 from fempm.linear import SolveFailed
 from fempm.timing import PhaseTimes
 
-__all__ = ["Stepper"]
+__all__ = ["StepControl", "Stepper"]
+
+#: Relative tolerance of time comparisons (a step that lands on a target time).
+TIME_TOLERANCE = 1e-9
+
+
+@dataclass
+class StepControl:
+    """An adaptive step: ``dt = C h / max |v_p|``, at most ``largest``, at most ``growth`` times the
+    previous step; a failed step is retried at half its size up to ``retries`` times.
+
+    Attributes:
+        courant: C, the fraction of a cell the fastest particle may cross in a step.
+        largest: the largest step, s.
+        growth: how much larger than the previous step a step may be.
+        retries: halvings of a failed step before the run is declared diverged.
+    """
+
+    courant: float
+    largest: float
+    growth: float = 1.25
+    retries: int = 3
+
+    def check(self):
+        """Raise :class:`InputError` naming the first unacceptable value."""
+        if not (math.isfinite(self.courant) and 0 < self.courant <= 10):
+            raise InputError(f"courant must be in (0, 10], got {self.courant}")
+        if not (math.isfinite(self.largest) and self.largest > 0):
+            raise InputError(f"the largest step must be positive, got {self.largest}")
+        if not self.growth >= 1:
+            raise InputError(f"the step growth must be >= 1, got {self.growth}")
+        if not (int(self.retries) == self.retries and self.retries >= 0):
+            raise InputError(f"retries must be a whole number >= 0, got {self.retries}")
+
+    def choose(self, fastest: float, h: float, previous: float | None) -> float:
+        """The step for particles whose fastest moves at ``fastest`` m/s on cells of size ``h``."""
+        dt = self.largest
+        if fastest > 0:
+            dt = min(dt, self.courant * h / fastest)
+        if previous is not None:
+            dt = min(dt, self.growth * previous)
+        return dt
 
 
 class Stepper:
-    """The clock of a time-stepping scheme.
+    """The clock of a time-stepping scheme; subclasses implement :meth:`advance`.
+
+    Args:
+        dt: the fixed step, or the first step's bound with a ``control``.
+        control: an adaptive step (:class:`StepControl`); None: the step is always ``dt``.
 
     Attributes:
-        dt: the time step.
+        dt: the last step's size (before the first step: the fixed step or its bound).
         time, steps: simulated time and steps taken.
         timings: wall seconds by phase (:class:`~fempm.timing.PhaseTimes`).
+        retries: ``(time, step, failed size, cause)`` of every retried step.
     """
 
-    def __init__(self, dt: float):
-        self.dt = dt
+    def __init__(self, dt: float, control: StepControl | None = None):
+        if control is not None:
+            control.check()
+        self.dt, self.control = dt, control
         self.time = 0.0
         self.steps = 0
         self.timings = PhaseTimes()
+        self.retries: list[tuple[float, int, float, str]] = []
+        self._previous: float | None = None  # the last step taken, for the growth limit
 
-    @contextmanager
-    def advancing(self):
-        """The body of one step: on success the clock moves by ``dt``; a failure of the solve, a
-        safeguard or a particle leaving the grid raises :class:`SimulationDiverged` instead."""
-        try:
-            yield
-        except (SolveFailed, ParticleOutsideGridError) as e:
-            raise SimulationDiverged(self.time + self.dt, self.steps + 1, str(e)) from None
-        self.time += self.dt
+    def step(self, until: float | None = None):
+        """Advance by one step, not past ``until`` (a time the step then lands on exactly).
+
+        Raises:
+            SimulationDiverged: the step failed (after its retries, with a step control).
+        """
+        dt = self._size(until)
+        saved = self.save() if self.control else None
+        for attempt in range(self.control.retries + 1 if self.control else 1):
+            try:
+                self.advance(dt)
+                break
+            except (SolveFailed, ParticleOutsideGridError) as failure:
+                if not self.control or attempt == self.control.retries:
+                    raise SimulationDiverged(self.time + dt, self.steps + 1, str(failure)) from None
+                self.retries.append((self.time, self.steps + 1, dt, str(failure)))
+                self.restore(saved)
+                dt /= 2
+        landed = until is not None and abs(self.time + dt - until) <= TIME_TOLERANCE * max(abs(until), dt)
+        self.time = until if landed else self.time + dt
         self.steps += 1
+        self.dt = self._previous = dt
+
+    def _size(self, until: float | None) -> float:
+        """The step: fixed, or the control's choice; shortened to land on ``until`` without a sliver
+        (what is left is cut into equal steps)."""
+        if self.control is None:
+            return self.dt
+        dt = self.control.choose(self.fastest(), self.cell_size(), self._previous)
+        if until is None:
+            return dt
+        remaining = until - self.time
+        if remaining <= dt * (1 + TIME_TOLERANCE):
+            return remaining
+        return remaining / math.ceil(remaining / dt * (1 - TIME_TOLERANCE))
+
+    # -- what a scheme provides ----------------------------------------------------------------
+    def advance(self, dt: float):
+        """One step of size ``dt``; raises :class:`~fempm.linear.SolveFailed` or
+        :class:`~fempm.errors.ParticleOutsideGridError` when it fails."""
+        raise NotImplementedError
+
+    def fastest(self) -> float:
+        """The largest particle speed on all ranks (for a step control)."""
+        raise NotImplementedError
+
+    def cell_size(self) -> float:
+        """The grid's cell size (for a step control)."""
+        raise NotImplementedError
+
+    def save(self):
+        """What :meth:`restore` needs to undo a failed step (for a step control)."""
+        raise NotImplementedError
+
+    def restore(self, saved):
+        """Undo a failed step."""
+        raise NotImplementedError

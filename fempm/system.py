@@ -91,6 +91,15 @@ class GridSystem:
         self._R = self.space.create_vector()
         self._delta, self._delta_of = None, None
 
+    @property
+    def dt(self) -> float:
+        """The step being taken (the forms' constant ``dt``)."""
+        return self.constants["dt"]
+
+    def set_step(self, dt: float):
+        """The size of the step about to be taken (read by the forms at assembly)."""
+        self.constants["dt"] = dt
+
     def impose_walls(self):
         """v_n and a_n on the held wall dofs: the walls' own (so ``v_{n+1} = v_wall``, ``a_{n+1} = 0``)."""
         self.walls.impose(self.fields["grid_velocity"], self.fields["grid_acceleration"])
@@ -108,7 +117,7 @@ class GridSystem:
         c = self.controls
         U = self.U.vector
         U.array[:] = 0.0
-        U.array[self.walls.positions] = self.scheme.dt * self.walls.values
+        U.array[self.walls.positions] = self.dt * self.walls.values
         U.scatter_forward()
         r0 = norm = None
         for iteration in range(c.newton_max_it):
@@ -143,11 +152,11 @@ class GridSystem:
     def end_state(self) -> tuple[np.ndarray, np.ndarray]:
         """``v_{n+1}`` and ``a_{n+1}`` on the grid from the solved ``du`` (Newmark); keeps ``v_{n+1}``
         and the pressure in :attr:`velocity` and :attr:`pressure`."""
-        s = self.scheme
+        s, dt = self.scheme, self.dt
         du = self.U.field("u")
         v, a = self.fields["grid_velocity"].values, self.fields["grid_acceleration"].values
-        a_new = newmark.acceleration(du, v, a, s.dt, s.beta)
-        v_new = newmark.velocity(du, v, a, s.dt, s.beta, s.gamma, a_new=a_new)
+        a_new = newmark.acceleration(du, v, a, dt, s.beta)
+        v_new = newmark.velocity(du, v, a, dt, s.beta, s.gamma, a_new=a_new)
         self.velocity.values[:] = v_new
         self.pressure.values[:] = self.U.field("p")
         return v_new, a_new
