@@ -56,13 +56,15 @@ FEMPM_FINER = (80, 4)                    # cells per side, particles per cell
 
 @dataclass
 class Row:
-    """One run: ``wall_s`` is interFoam's process or fempm's whole call; ``steps_s`` fempm's steps alone."""
+    """One run: ``wall_s`` is interFoam's process or fempm's whole call, ``cpu_s`` the CPU time of
+    the same; ``steps_s`` fempm's steps alone (wall)."""
 
     code: str
     cells: int
     particles_per_cell: int | None
     steps: int
     wall_s: float
+    cpu_s: float
     steps_s: float | None
     front: np.ndarray          # (T, Z)
     note: str = ""
@@ -72,8 +74,8 @@ class Row:
 # -- the runs ----------------------------------------------------------------------------------------
 def interfoam_row(cells: int, end_time: float) -> Row:
     r = interfoam.run(cells, end_time)
-    return Row("interFoam", cells, None, r.steps, r.wall_s, None, dimensionless_front(*r.front_t_x.T),
-               note=f"water volume drift {r.volume_drift:+.1e}; CPU {r.cpu_s:.2f} s")
+    return Row("interFoam", cells, None, r.steps, r.wall_s, r.cpu_s, None, dimensionless_front(*r.front_t_x.T),
+               note=f"water volume drift {r.volume_drift:+.1e}")
 
 
 def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int | None = None) -> Row:
@@ -92,24 +94,24 @@ def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int
         data["time"] = {**data["time"], "end": end_time}
         data["output"] = {"folder": str(folder), "progress": False}  # histories and summary only
         scene = parse_scene(data, source=SCENE)
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         summary = run_scene(scene, overwrite=True, progress=False)
-        wall = time.perf_counter() - start
+        wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
         t, x = np.loadtxt(folder / "front.csv", delimiter=",", comments="#", skiprows=2, unpack=True)
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     if summary["status"] != "completed":
         print(f"versus_interfoam: fempm run ended {summary['status']}: {summary['cause']}", flush=True)
-    return Row("fempm", scene.domain.shape[0], scene.bodies[0].particles_per_cell, summary["steps"], wall,
+    return Row("fempm", scene.domain.shape[0], scene.bodies[0].particles_per_cell, summary["steps"], wall, cpu,
                summary["wall_time_s"], dimensionless_front(t, x), note=f"{summary['particles']} particles")
 
 
 # -- equal error -----------------------------------------------------------------------------------
-def wall_at_error(rows: list[Row], error: float) -> tuple[float | None, bool]:
-    """Wall time at which a code's error-against-wall-time curve reaches ``error``, and whether
-    that was extrapolated beyond its runs: linear in log-log between consecutive runs (by wall
-    time), the cheapest bracketing pair; outside them, the nearest pair's line."""
-    pts = sorted((r.wall_s, r.error) for r in rows if r.error and r.error > 0)
+def wall_at_error(rows: list[Row], error: float, time_of=lambda r: r.wall_s) -> tuple[float | None, bool]:
+    """Time (``time_of`` a run, default its wall time) at which a code's error-against-time curve
+    reaches ``error``, and whether that was extrapolated beyond its runs: linear in log-log between
+    consecutive runs (by time), the cheapest bracketing pair; outside them, the nearest pair's line."""
+    pts = sorted((time_of(r), r.error) for r in rows if r.error and r.error > 0)
     if len(pts) < 2:
         return None, False
     lw, le = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
@@ -124,12 +126,13 @@ def wall_at_error(rows: list[Row], error: float) -> tuple[float | None, bool]:
 
 
 def equal_error(rows: list[Row]) -> list[tuple]:
-    """Per target: (target, interFoam wall, extrapolated?, fempm call wall, ?, fempm steps wall, ?)."""
+    """Per target: (target, then (time, extrapolated?) of interFoam's wall, fempm's call, fempm's steps,
+    interFoam's CPU, fempm's call CPU)."""
     foam = [r for r in rows if r.code == "interFoam"]
     mpm = [r for r in rows if r.code == "fempm"]
-    steps_only = [Row(r.code, r.cells, r.particles_per_cell, r.steps, r.steps_s, None, r.front, error=r.error)
-                  for r in mpm]
-    return [(e, *wall_at_error(foam, e), *wall_at_error(mpm, e), *wall_at_error(steps_only, e)) for e in TARGETS]
+    cpu = lambda r: r.cpu_s  # noqa: E731
+    return [(e, wall_at_error(foam, e), wall_at_error(mpm, e), wall_at_error(mpm, e, lambda r: r.steps_s),
+             wall_at_error(foam, e, cpu), wall_at_error(mpm, e, cpu)) for e in TARGETS]
 
 
 # -- the outputs --------------------------------------------------------------------------------------
@@ -143,17 +146,18 @@ def _ratio(a: float | None, b: float | None) -> str:
 
 def tables(rows: list[Row], reference: str) -> str:
     """The runs and the equal-error comparison as Markdown tables."""
-    lines = ["| code | grid | particles per cell | steps | wall time (s) | fempm steps alone (s) | "
-             f"front vs {reference} | note |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| code | grid | particles per cell | steps | wall time (s) | CPU time (s) | fempm steps alone (s) | "
+             f"front vs {reference} | note |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         err = "reference" if r.error is None else f"{100 * r.error:.2f} %"
         lines.append(f"| {r.code} | {r.cells}² | {r.particles_per_cell or '—'} | {r.steps} | {r.wall_s:.1f} | "
-                     f"{_seconds(r.steps_s) if r.steps_s else '—'} | {err} | {r.note} |")
-    lines += ["", "| front difference | interFoam (s) | fempm, whole call (s) | fempm / interFoam | "
-              "fempm, steps alone (s) | fempm / interFoam |", "|---|---|---|---|---|---|"]
-    for e, wf, xf, wc, xc, ws, xs in equal_error(rows):
-        lines.append(f"| {100 * e:.1f} % | {_seconds(wf, xf)} | {_seconds(wc, xc)} | {_ratio(wc, wf)} | "
-                     f"{_seconds(ws, xs)} | {_ratio(ws, wf)} |")
+                     f"{r.cpu_s:.1f} | {_seconds(r.steps_s) if r.steps_s else '—'} | {err} | {r.note} |")
+    lines += ["", "| front difference | interFoam wall (s) | fempm wall, whole call (s) | fempm / interFoam | "
+              "fempm wall, steps alone (s) | fempm / interFoam | CPU time: fempm call / interFoam |",
+              "|---|---|---|---|---|---|---|"]
+    for e, foam, call, steps, foam_cpu, call_cpu in equal_error(rows):
+        lines.append(f"| {100 * e:.1f} % | {_seconds(*foam)} | {_seconds(*call)} | {_ratio(call[0], foam[0])} | "
+                     f"{_seconds(*steps)} | {_ratio(steps[0], foam[0])} | {_ratio(call_cpu[0], foam_cpu[0])} |")
     return "\n".join(lines)
 
 
@@ -197,13 +201,16 @@ The case is `scenes/dambreak.toml` (0.584 m square closed tank, slip walls, wate
 `benchmarks/interfoam.py`) solves it with air above the water, the damBreak tutorial's schemes and
 adjustable step (maxCo 1); its wall time is the interFoam process alone. fempm runs the scene through
 `fempm.simulation.run_scene`; its wall time is the whole call (grid, particles, compiled forms
-included) and, beside it, its summary's `wall_time_s` (the steps alone). The front difference is
-`fempm.references.front_difference` against {reference_long}: the RMS relative difference of the
-surge front over 0.3 < T ≤ 3 (T = t √(2g/L), L = 0.146 m), i.e. over the first 0.27 s.
+included) and, beside it, its summary's `wall_time_s` (the steps alone). CPU time (interFoam's own
+`ExecutionTime`, fempm's process CPU time over the call) depends less on the machine's load. The
+front difference is
+`fempm.references.front_difference` against
+{reference_long}: the RMS relative difference of the surge front over 0.3 < T ≤ 3
+(T = t √(2g/L), L = 0.146 m), i.e. over the first 0.27 s.
 
 {tables}
 
-The second table gives each code's wall time to reach a front difference, interpolated linearly in
+The second table gives each code's time to reach a front difference, interpolated linearly in
 log-log between its runs (* extrapolated beyond them, along the nearest two runs' line).
 
 ![front difference against wall time]({figure})

@@ -30,7 +30,7 @@ def test_front_of_rows_is_linear_between_cell_centres():
 
 
 def test_wall_at_error_interpolates_log_log():
-    rows = [versus_interfoam.Row("x", c, None, 1, w, None, None, error=e) for c, w, e in ((40, 1.0, 0.04),
+    rows = [versus_interfoam.Row("x", c, None, 1, w, w, None, None, error=e) for c, w, e in ((40, 1.0, 0.04),
                                                                                           (80, 10.0, 0.01))]
     wall, extrapolated = versus_interfoam.wall_at_error(rows, 0.02)
     assert wall == pytest.approx(10**0.5, rel=1e-12) and not extrapolated
