@@ -46,6 +46,7 @@ TANK = 0.584                 #: m, the square tank's side
 COLUMN = (0.146, 0.292)      #: m, the water column's width and height
 PROGRAMS = ("blockMesh", "setFields", "interFoam")
 DEBIAN_PROJECT_DIR = Path("/usr/share/openfoam")
+INSTALL = ["apt-get", "install", "-y", "--no-install-recommends", "openfoam"]  # the examples are not needed
 _E = 1e-4                    # m: probe points this far inside a wall read the wall's value
 #: wall pressure probes: name -> (x, y) in m (the columns of ``InterFoamRun.probes``)
 PROBES = {
@@ -96,27 +97,27 @@ def environment() -> dict[str, str]:
 def ensure_openfoam(install: bool = True) -> str | None:
     """None when blockMesh, setFields and interFoam are on PATH, else why not.
 
-    Missing programs are installed with ``apt-get install -y openfoam`` when ``install`` is
-    set and this process may (root, apt-get present); that takes minutes on a fresh machine.
+    Missing programs are installed with ``apt-get install -y --no-install-recommends openfoam``
+    (after ``apt-get update`` if the first try fails) when ``install`` is set and this process
+    may (root, apt-get present); that takes minutes on a fresh machine.
     """
     missing = [p for p in PROGRAMS if shutil.which(p) is None]
-    if missing and install and shutil.which("apt-get") and os.geteuid() == 0:
-        print("interfoam: installing Debian's openfoam (apt-get install -y openfoam) ...", flush=True)
+    can_install = install and shutil.which("apt-get") is not None and os.geteuid() == 0
+    if missing and can_install:
+        print(f"interfoam: installing Debian's openfoam ({' '.join(INSTALL)}) ...", flush=True)
         env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
-        for command in (["apt-get", "install", "-y", "openfoam"], ["apt-get", "update"],
-                        ["apt-get", "install", "-y", "openfoam"]):
-            done = subprocess.run(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-            if done.returncode == 0 and command[1] == "install":
-                break
+        quiet = {"env": env, "stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+        if subprocess.run(INSTALL, **quiet).returncode != 0:
+            subprocess.run(["apt-get", "update"], **quiet)
+            subprocess.run(INSTALL, **quiet)
         missing = [p for p in PROGRAMS if shutil.which(p) is None]
-    if not missing:
-        project = Path(environment()["WM_PROJECT_DIR"])
-        if not (project / "etc" / "controlDict").is_file():
-            return f"OpenFOAM's etc/controlDict not found under WM_PROJECT_DIR = {project}"
-        return None
-    how = ("apt-get install -y openfoam failed" if install and shutil.which("apt-get") and os.geteuid() == 0
-           else "install Debian's openfoam package (apt-get install -y openfoam, as root)")
-    return f"OpenFOAM not available ({', '.join(missing)} not on PATH): {how}"
+    if missing:
+        how = f"{' '.join(INSTALL)} failed" if can_install else f"install it as root: {' '.join(INSTALL)}"
+        return f"OpenFOAM not available ({', '.join(missing)} not on PATH): {how}"
+    project = Path(environment()["WM_PROJECT_DIR"])
+    if not (project / "etc" / "controlDict").is_file():
+        return f"OpenFOAM's etc/controlDict not found under WM_PROJECT_DIR = {project}"
+    return None
 
 
 # -- the case -------------------------------------------------------------------------------------
@@ -191,7 +192,8 @@ boundaryField
                              "type fixedFluxPressure; value uniform 0;")
     files["0/alpha.water.orig"] = field("volScalarField", "alpha.water", "[0 0 0 0 0 0 0]", "0",
                                         "type zeroGradient;")
-    files["constant/g"] = _header("uniformDimensionedVectorField", "g") + "dimensions [0 1 -2 0 0 0 0]; value (0 -9.81 0);\n"
+    files["constant/g"] = (_header("uniformDimensionedVectorField", "g")
+                           + "dimensions [0 1 -2 0 0 0 0]; value (0 -9.81 0);\n")
     files["constant/turbulenceProperties"] = _header("dictionary", "turbulenceProperties") + "simulationType laminar;\n"
     files["constant/transportProperties"] = _header("dictionary", "transportProperties") + """
 phases (water air);
