@@ -104,7 +104,8 @@ def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int
         start, start_cpu = time.perf_counter(), time.process_time()
         summary = run_scene(scene, overwrite=True, progress=False)
         wall, cpu = time.perf_counter() - start, time.process_time() - start_cpu
-        t, x = np.loadtxt(folder / "front.csv", delimiter=",", comments="#", skiprows=2, unpack=True)
+        lines = [line for line in (folder / "front.csv").read_text().splitlines() if not line.startswith("#")]
+        t, x = np.loadtxt(lines[1:], delimiter=",", unpack=True)  # after the header line t,front_m
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     if summary["status"] != "completed":
