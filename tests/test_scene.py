@@ -42,9 +42,12 @@ BAD_SCENES = [
     ("zero cells", _edit("cells = [40, 40]", "cells = [0, 40]"), [],
      r"domain.cells: must be a pair of whole numbers >= 1 \[nx, ny\], got \[0, 40\]"),
     ("cells not square", _edit("cells = [40, 40]", "cells = [40, 20]"), [],
-     r"domain.cells: grid: cells must be square, but 40 x 20 cells"),
+     r"domain.cells = \[40, 20\]: the cells must be square, but they would be 0.0146 x 0.0292 m; for square cells "
+     r"of 0.0146 m take domain.upper = \[0.584, 0.292\] or cells = \[40, 40\]"),
     ("cell size not dividing the tank", _edit("cells = [40, 40]", "cell_size = 0.05"), [],
-     r"domain.cell_size: grid: the width \(0.584\) is not a whole number of cells of size h = 0.05"),
+     r"domain.cell_size = 0.05: the width 0.584 m is not a whole number of cells \(11.68\); the cells are square "
+     r"and the tank's faces are the walls: take domain.upper\[0\] = 0.55 or 0.6 \(11 or 12 cells\), or a cell "
+     r"size dividing 0.584"),
     ("both cells and cell size", _edit("cells = [40, 40]", "cells = [40, 40]\ncell_size = 0.0146"), [],
      r"domain: give exactly one of cells = \[nx, ny\] and cell_size = h"),
     ("zero time step", _edit("dt = 1.0e-3", "dt = 0.0"), [], r"time.dt: must be a number > 0, got 0.0 \(s\)"),
@@ -79,8 +82,12 @@ BAD_SCENES = [
     ("boolean as a string", _edit("pspg = true", 'pspg = "yes"'), [], r"solver.pspg: must be true or false, got 'yes'"),
     ("output interval shorter than dt", _edit("particles_interval = 0.05", "particles_interval = 0.0001"), [],
      r"output.particles_interval = 0.0001 is shorter than time.dt = 0.001: must be >= dt"),
-    ("missing forms file", _edit('pic_blend = 0.1', 'pic_blend = 0.1\nforms = "nowhere.py"'), [],
-     r"solver.forms = '.*nowhere.py': no such forms file"),
+    ("forms by path", _edit('pic_blend = 0.1', 'pic_blend = 0.1\nforms = "nowhere.py"'), [],
+     r"solver.forms: must be the bare name of a shipped forms file \(e.g. 'incompressible'\), got 'nowhere.py': "
+     r"a forms file is Python code that runs, so a scene cannot name one by path; give your own file on the "
+     r"command line with --forms PATH"),
+    ("forms not shipped", _edit('pic_blend = 0.1', 'pic_blend = 0.1\nforms = "nowhere"'), [],
+     r"solver.forms = 'nowhere': no shipped forms of that name; shipped: incompressible, weakly_compressible"),
     ("no fluid", re.sub(r"\[\[bodies\]\].*?particles_per_cell = 4[^\n]*\n", "", DAMBREAK, flags=re.S), [],
      r"the scene has no fluid: add at least one \[\[bodies\]\] table"),
     ("obstacle finer than the grid", DAMBREAK + '\n[[obstacles]]\nshape = "rectangle"\nlower = [0.4, 0.0]\n'
