@@ -138,7 +138,8 @@ def scene_of(args, petsc_args=()) -> Scene:
     data["time"]["dt"] = args.dt
     own = args.forms.endswith(".py") or "/" in args.forms  # a file of the user's own, not a shipped name
     data["solver"].update(pspg=not args.no_pspg, forms=args.forms if not own else "incompressible",
-                          petsc=_petsc_table(petsc_args), volume_correction=0.0 if args.no_volume_correction else args.alpha)
+                          petsc=_petsc_table(petsc_args),
+                          volume_correction=0.0 if args.no_volume_correction else args.alpha)
     return parse_scene(data, source="command line", forms=args.forms if own else None, names=FLAGS)
 
 
@@ -153,8 +154,9 @@ def water_column(args, comm=MPI.COMM_WORLD) -> tuple:
 
 
 # the scene's keys the flags set, named as flags in messages
-FLAGS = {"time.end": "--end-time", "time.dt": "--dt", "domain.cells": "--cells", "bodies[0].particles_per_cell": "--ppc",
-         "fluid.viscosity": "--viscosity", "solver.pic_blend": "--pic", "solver.volume_correction": "--alpha",
+FLAGS = {"time.end": "--end-time", "time.dt": "--dt", "domain.cells": "--cells",
+         "bodies[0].particles_per_cell": "--ppc", "fluid.viscosity": "--viscosity", "solver.pic_blend": "--pic",
+         "solver.volume_correction": "--alpha",
          "output.folder": "--out", "output.particles_interval": "--output-interval",
          "output.grid_interval": "--output-interval", "solver.forms": "--forms"}
 
@@ -173,7 +175,8 @@ def _petsc_table(petsc_args) -> dict:
 def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
     """Run the dam break of ``args``; returns the summary (also written to summary.json)."""
     scene = scene_of(args, petsc_args)
-    summary = simulation.run_scene(scene, comm, overwrite=args.overwrite, progress=not args.quiet)
+    simulation.check_folder(scene.output.folder, comm, args.overwrite, key="--out")  # refused unless --overwrite
+    summary = simulation.run_scene(scene, comm, overwrite=True, progress=not args.quiet)
     summary["scheme"] = "implicit"
     compare_front(Path(scene.output.folder), summary, comm)
     return summary

@@ -31,8 +31,8 @@ from fempm.errors import InputError
 from fempm.output import OUTPUT_NAMES, OutputError, agree, atomic_path, gather_particles
 from fempm.recording import steps_between
 
-__all__ = ["CHECKPOINT", "Checkpoint", "Checkpoints", "StopSignals", "check_against", "read_checkpoint", "restore",
-           "write_checkpoint"]
+__all__ = ["CHECKPOINT", "Checkpoint", "Checkpoints", "StopSignals", "check_against", "check_time", "read_checkpoint",
+           "restore", "write_checkpoint"]
 
 CHECKPOINT = "checkpoint.npz"
 _PARTICLE = "particle:"
@@ -182,22 +182,19 @@ def _check_meta(meta) -> str | None:
     return None
 
 
-def check_against(checkpoint: Checkpoint, solver, folder: str | Path, dt: float):
+def check_against(checkpoint: Checkpoint, solver, folder: str | Path):
     """Raise :class:`InputError` unless the checkpoint fits the solver built from its scene.
 
     Checked field by field on rank 0: the particle fields are those of the solver's
     particles, each with one row per particle, the solver's value shape and kind
-    (ids whole and distinct), finite, with volume and mass positive; the time is the
-    step count times ``dt``; the series files the checkpoint lists are in ``folder``.
+    (ids whole and distinct), finite, with volume and mass positive; the series files the
+    checkpoint lists are in ``folder`` (the time: :func:`check_time`).
     """
     particles = solver.particles
     comm = particles.grid.comm
     error = None
     if comm.rank == 0:
         error = _particle_problem(checkpoint.particles, particles.fields)
-        if error is None and abs(checkpoint.time - checkpoint.steps * dt) > 0.5 * dt:
-            error = (f"meta.time = {checkpoint.time!r} is not meta.steps = {checkpoint.steps} times the scene's "
-                     f"time.dt = {dt:g}")
         if error is None:
             for key in ("particle_series", "grid_series"):
                 missing = [f for _, f in checkpoint.recorder[key] if not (Path(folder) / f).is_file()]
@@ -208,6 +205,13 @@ def check_against(checkpoint: Checkpoint, solver, folder: str | Path, dt: float)
     error = comm.bcast(error, root=0)
     if error:
         raise InputError(f"--resume {str(folder)!r}: {CHECKPOINT}: {error}")
+
+
+def check_time(checkpoint: Checkpoint, dt: float, folder: str | Path):
+    """Raise :class:`InputError` unless the checkpoint's time is its step count times ``dt``."""
+    if abs(checkpoint.time - checkpoint.steps * dt) > 0.5 * dt:
+        raise InputError(f"--resume {str(folder)!r}: {CHECKPOINT}: meta.time = {checkpoint.time!r} is not meta.steps = "
+                         f"{checkpoint.steps} times the scene's time.dt = {dt:g}")
 
 
 def _particle_problem(arrays: dict[str, np.ndarray], fields: dict[str, np.ndarray]) -> str | None:

@@ -28,7 +28,8 @@ from fempm.grid import Grid
 from fempm.implicit import ImplicitOptions, ImplicitSolver
 from fempm.particles import Particles, sub_cell_centres
 from fempm.recording import Recorder, RecorderOptions
-from fempm.restart import CHECKPOINT, Checkpoints, StopSignals, check_against, read_checkpoint, restore
+from fempm.restart import (CHECKPOINT, Checkpoints, StopSignals, check_against, check_time, read_checkpoint,
+                           restore)
 from fempm.scene import Scene, scene_from_text, to_toml
 
 __all__ = ["build_solver", "check_folder", "pressure_limit", "resume", "run_scene"]
@@ -165,10 +166,11 @@ def resume(folder: str | Path, comm=MPI.COMM_WORLD, end_time: float | None = Non
     if checkpoint.ranks != comm.size and comm.rank == 0:
         print(f"fempm: note: resuming on {comm.size} rank(s) a run checkpointed on {checkpoint.ranks}: it goes on "
               f"correctly, but bit-identical continuation holds only on the same number of ranks", file=sys.stderr)
+    check_time(checkpoint, scene.time.dt, folder)
     if scene.time.end < checkpoint.time - 0.5 * scene.time.dt:
         raise InputError(f"--end-time {scene.time.end:g} is before the checkpoint's time {checkpoint.time:g} s")
     solver = build_solver(scene, comm)
-    check_against(checkpoint, solver, folder, scene.time.dt)
+    check_against(checkpoint, solver, folder)
     return _run(scene, solver, checkpoint, progress)
 
 
