@@ -48,24 +48,17 @@ class _Parser(argparse.ArgumentParser):
         raise _ArgumentError(f"{self.prog}: {message} (see {self.prog} --help)")
 
 
-def _positive(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a number of seconds > 0, got {text!r}")
-    return value
-
-
-def _gigabytes(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a number of GB > 0, got {text!r}") from None
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a number of GB > 0, got {text!r}")
-    return value
+def _positive(unit: str):
+    """An argument type: a finite number > 0 of ``unit``."""
+    def convert(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not (value > 0 and value < float("inf")):
+            raise argparse.ArgumentTypeError(f"must be a number of {unit} > 0, got {text!r}")
+        return value
+    return convert
 
 
 def parser() -> argparse.ArgumentParser:
@@ -79,17 +72,18 @@ def parser() -> argparse.ArgumentParser:
                                               "with the size of its run; nothing is written")
     check.add_argument("scene", help="the scene file (.toml)")
     check.add_argument("--forms", metavar="PATH", help=forms_help)
-    check.add_argument("--max-memory", type=_gigabytes, metavar="GB", help=memory_help)
+    check.add_argument("--max-memory", type=_positive("GB"), metavar="GB", help=memory_help)
     run = commands.add_parser("run", help="run a scene, or resume a run from its checkpoint")
     run.add_argument("scene", nargs="?", help="the scene file (.toml); not with --resume")
     run.add_argument("--resume", metavar="DIR", help="continue the run whose checkpoint is in DIR")
     run.add_argument("--out", metavar="DIR", help="output folder (overrides output.folder)")
-    run.add_argument("--end-time", type=_positive, metavar="T", help="simulated end time, s (overrides time.end)")
+    run.add_argument("--end-time", type=_positive("seconds"), metavar="T",
+                     help="simulated end time, s (overrides time.end)")
     run.add_argument("--overwrite", action="store_true",
                      help="start afresh in a folder holding an earlier run: its files are removed, others kept")
     run.add_argument("--quiet", action="store_true", help="no progress line")
     run.add_argument("--forms", metavar="PATH", help=forms_help)
-    run.add_argument("--max-memory", type=_gigabytes, metavar="GB", help=memory_help)
+    run.add_argument("--max-memory", type=_positive("GB"), metavar="GB", help=memory_help)
     return top
 
 

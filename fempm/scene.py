@@ -571,7 +571,7 @@ def check_size(scene: Scene, max_memory: float | None = None, ranks: int = 1,
                          f"({e.cells:.3g} cells, {e.matrix_entries:.3g} matrix entries, {e.particles:.3g} particles"
                          f"{f', {ranks} ranks' if ranks > 1 else ''}), more than the {limit:.3g} GB {what}; use "
                          f"fewer cells or particles, or set the limit with --max-memory GB")
-    if 3 * e.functions * ranks >= 2**31 - 1:  # PETSc's indices here are 32-bit
+    if e.unknowns >= 2**31 - 1:  # PETSc's indices here are 32-bit
         raise InputError(f"{e.key} = {e.value}: {e.unknowns:.3g} unknowns, more than PETSc's 32-bit indices "
                          f"address ({2**31 - 1}); use fewer cells")
     _check_magnitudes(scene)

@@ -12,8 +12,11 @@ An output folder holding an earlier run's files is refused unless the run starts
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
 import sys
+import threading
 from dataclasses import asdict
 from pathlib import Path
 
@@ -55,8 +58,14 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
         pic_blend=sv.pic_blend, walls=asdict(scene.walls), forms=sv.forms, petsc_options=petsc,
         pressure_limit=pressure_limit(scene, particles),
     )
-    with reporting_errors(sv.forms):  # the forms are compiled here: their mistakes name the file
-        return ImplicitSolver(basis, particles, options)
+    # The forms are compiled here: their mistakes name the file, and a stop request waits until the
+    # compiler is done (stopped half-way, FFCx leaves its cache waiting for the compile).
+    main = threading.current_thread() is threading.main_thread()  # where signal handlers can be set
+    with reporting_errors(sv.forms), (StopSignals() if main else contextlib.nullcontext()) as stop:
+        solver = ImplicitSolver(basis, particles, options)
+    if stop is not None and stop.received:
+        signal.raise_signal(stop.received)  # now as the handler outside would have had it
+    return solver
 
 
 def pressure_limit(scene: Scene, particles: Particles) -> float:
