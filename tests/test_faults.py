@@ -157,9 +157,9 @@ def _refined(cells: int, steps: int = 2) -> str:
 def test_the_memory_estimate_is_close_to_the_measured_peak(tmp_path):
     """Two sizes of the refined dam break: 800 and 12 800 particles, direct solver, two steps.
 
-    Fitted on 11 runs up to 2e5 particles (ratios measured/estimated 0.94 to 1.02) and
-    within 0.80 to 1.14 of the README's scaling table up to 1e6 particles on 2 ranks."""
-    for cells, low, high in ((40, 0.90, 1.15), (160, 0.90, 1.15)):  # measured 1.02 and 1.01
+    Fitted on 11 runs up to 2e5 particles (ratios measured/estimated 0.97 to 1.05) and
+    within 0.91 to 1.23 of the README's scaling table up to 1e6 particles on 2 ranks."""
+    for cells, low, high in ((40, 0.90, 1.15), (160, 0.90, 1.15)):  # measured 1.035 and 1.023
         text = _refined(cells)
         measured = _peak_memory(text, tmp_path)
         estimated = estimate(scene_from_text(text, "refined.toml")).memory_gb
@@ -170,7 +170,7 @@ def test_a_scene_beyond_the_memory_limit_is_refused_before_allocating(tmp_path):
     (tmp_path / "scene.toml").write_text(DAMBREAK.replace("cells = [40, 40]", "cells = [20000, 20000]"))
     start = time.monotonic()
     status, out, err = fempm("check", tmp_path / "scene.toml")
-    assert status == 2 and re.search(r"domain.cells = \[20000, 20000\]: the run would need about 2.\de\+03 GB of "
+    assert status == 2 and re.search(r"domain.cells = \[20000, 20000\]: the run would need about 2.\d+e\+03 GB of "
                                      r"memory", one_line(err))
     assert time.monotonic() - start < 120  # refused from arithmetic (on main it grew past 8.6 GB in ~35 s)
 
