@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 
 from fempm import diagnostics, output
 from fempm.errors import SimulationDiverged
@@ -80,15 +81,20 @@ class Recorder:
         self._started = time.perf_counter()
 
     def wall_time(self) -> float:
-        """Wall seconds of the run so far, earlier parts of a resumed run included."""
-        return self.wall_before + (time.perf_counter() - self._started if self._started is not None else 0.0)
+        """Wall seconds of this part of the run so far (this rank's clock)."""
+        return time.perf_counter() - self._started if self._started is not None else 0.0
 
-    def phase_times(self) -> dict[str, float]:
-        """Wall seconds by phase of the run so far, earlier parts included."""
+    def _times(self, part: float) -> tuple[float, float, dict[str, float]]:
+        """This part's wall time, the run's (earlier parts included) and the run's by phase, each the
+        largest over the ranks, so that every rank reports the same (collective)."""
+        comm = self.solver.grid.comm
+        part = comm.allreduce(part, op=MPI.MAX)
+        local = dict(self.solver.timings)
+        names = sorted(set().union(*comm.allgather(list(local))))
         phases = dict(self.phases_before)
-        for name, seconds in self.solver.timings.items():
-            phases[name] = phases.get(name, 0.0) + seconds
-        return phases
+        for name in names:
+            phases[name] = phases.get(name, 0.0) + comm.allreduce(local.get(name, 0.0), op=MPI.MAX)
+        return part, self.wall_before + part, phases
 
     def record(self):
         """Take the measures of the current state; write the files due at this step."""
@@ -127,13 +133,14 @@ class Recorder:
         output.agree(grid.comm, error)
 
     def state(self) -> dict:
-        """Everything :meth:`restore` needs to continue these histories and series (JSON-able)."""
+        """Everything :meth:`restore` needs to continue these histories and series (JSON-able; collective)."""
+        _, total, phases = self._times(self.wall_time())
         return {
             "front": self.front, "cells": self.cells, "pressure_min": self.pressure_min,
             "pressure_max": self.pressure_max, "max_divergence": self.max_divergence,
             "particle_series": self.particle_series.entries if self.particle_series else [],
             "grid_series": self.grid_series.entries if self.grid_series else [],
-            "wall_time_s": self.wall_time(), "wall_time_by_phase_s": self.phase_times(),
+            "wall_time_s": total, "wall_time_by_phase_s": phases,
         }
 
     def restore(self, state: dict):
@@ -172,11 +179,11 @@ class Recorder:
         if self.options.final_snapshot:
             attempt(lambda: output.snapshot(self.folder / "snapshot_final.png", s.particles,
                                             title=f"t = {s.time:.3f} s ({status})", clim=self.options.pressure_scale))
+        part, total, phases = self._times(wall)
         summary = {
             "status": status, "cause": cause, "time": s.time, "steps": s.steps,
             "particles": s.particles.global_count(), "basis": s.basis.name, "ranks": s.grid.comm.size,
-            "wall_time_s": self.wall_before + wall, "wall_time_this_part_s": wall,
-            "wall_time_by_phase_s": self.phase_times(),
+            "wall_time_s": total, "wall_time_this_part_s": part, "wall_time_by_phase_s": phases,
             "pressure_min_Pa": self.pressure_min, "pressure_max_Pa": self.pressure_max,
             "max_abs_div_v_per_s": self.max_divergence,
             "occupied_cells_initial": self.cells[0][1], "occupied_cells_final": self.cells[-1][1],

@@ -57,10 +57,10 @@ def write_checkpoint(folder: Path, solver, recorder, scene_text: str):
     comm = particles.grid.comm
     data = gather_particles(particles, [n for n in particles.fields if n not in ("x", "id")])
     lost = (comm.allreduce(particles.lost_mass), comm.allreduce(particles.lost_count))
+    state = recorder.state()  # collective
     error = None
     if comm.rank == 0:
-        meta = {"time": solver.time, "steps": solver.steps, "ranks": comm.size, "lost": lost,
-                "recorder": recorder.state()}
+        meta = {"time": solver.time, "steps": solver.steps, "ranks": comm.size, "lost": lost, "recorder": state}
         arrays = {f"{_PARTICLE}{name}": a for name, a in data.items()}
         try:
             with atomic_path(Path(folder) / CHECKPOINT) as tmp:
