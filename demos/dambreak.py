@@ -16,7 +16,7 @@ copy with ``--forms``, to change the physics.
 
 The set-up is the scene ``scenes/dambreak.toml`` (``fempm run scenes/dambreak.toml`` runs
 it too); the flags below change it. The run writes to ``--out`` (default
-``results/dambreak``):
+``results/dambreak-demo``; a folder holding an earlier run is refused without ``--overwrite``):
 
 * ``front.csv`` (t, x_front) and ``front.png``: surge front Z = x/L against
   T = t sqrt(2g/L), with the Koshizuka-Oka experiment and Martin-Moyce's data (the
@@ -28,7 +28,7 @@ it too); the flags below change it. The run writes to ``--out`` (default
   particles and grid fields for ParaView, every ``--output-interval`` seconds;
 * ``volume.csv``: cells occupied by water and the mean depth they make (Fig. 4);
 * ``summary.json``: front error, steps, wall time by phase, pressure range, max |div v|;
-* ``checkpoint.npz``: for ``fempm run --resume results/dambreak``.
+* ``checkpoint.npz``: for ``fempm run --resume results/dambreak-demo``.
 
 Run (``mpirun -n 2`` works the same)::
 
@@ -74,6 +74,7 @@ def common_arguments(description: str, out: str, forms: str, pic: float) -> argp
     parser.add_argument("--viscosity", type=float, default=1.0e-3, help="Pa s")
     parser.add_argument("--forms", default=forms, help=f"weak forms file (default forms/{forms}.py)")
     parser.add_argument("--out", type=Path, default=Path(out), help=f"output folder (default {out})")
+    parser.add_argument("--overwrite", action="store_true", help="replace an earlier run's files in the folder")
     parser.add_argument("--output-interval", type=float, default=0.05, help="ParaView output every, s")
     parser.add_argument("--no-files", action="store_true", help="write only the tables and summary")
     parser.add_argument("--quiet", action="store_true", help="no progress line")
@@ -93,7 +94,7 @@ def check_common(parser: argparse.ArgumentParser, args: argparse.Namespace):
 
 def parse_arguments(argv=None) -> tuple[argparse.Namespace, list[str]]:
     """The demo's flags; unknown ``-fempm_...`` flags (with their values) go to PETSc."""
-    parser = common_arguments(__doc__, "results/dambreak", "incompressible", Scheme.pic_blend)
+    parser = common_arguments(__doc__, "results/dambreak-demo", "incompressible", Scheme.pic_blend)
     parser.add_argument("--dt", type=float, default=1.0e-3, help="time step, s (default 1e-3)")
     parser.add_argument("--no-pspg", action="store_true", help="switch PSPG off (the run then fails)")
     parser.add_argument("--no-volume-correction", action="store_true", help="alpha = 0 (method.md eq. 3)")
@@ -117,6 +118,7 @@ def tank(args) -> dict:
     data["walls"] = dict.fromkeys(data["walls"], args.walls)
     data["solver"].update(basis=args.basis, pic_blend=args.pic)
     data["output"].update(folder=str(args.out), progress=not args.quiet)
+    data["output"]["snapshots"] = [t for t in data["output"].get("snapshots", []) if t <= args.end_time]
     if args.no_files:
         for key in ("particles_interval", "grid_interval", "snapshots", "final_snapshot"):
             data["output"].pop(key, None)
@@ -129,10 +131,11 @@ def scene_of(args, petsc_args=()) -> Scene:
     """The implicit demo's scene: the tank with every flag applied (checked as any scene is)."""
     data = tank(args)
     data["time"]["dt"] = args.dt
-    forms = str(Path(args.forms).resolve()) if args.forms.endswith(".py") else args.forms
-    data["solver"].update(pspg=not args.no_pspg, forms=forms, petsc=_petsc_table(petsc_args),
+    own = args.forms.endswith(".py") or "/" in args.forms  # a file of the user's own, not a shipped name
+    data["solver"].update(pspg=not args.no_pspg, forms=args.forms if not own else "incompressible",
+                          petsc=_petsc_table(petsc_args),
                           volume_correction=0.0 if args.no_volume_correction else args.alpha)
-    return parse_scene(data, source=SCENE)
+    return parse_scene(data, source="command line", forms=args.forms if own else None, names=FLAGS)
 
 
 def build(args, comm=MPI.COMM_WORLD):
@@ -142,7 +145,15 @@ def build(args, comm=MPI.COMM_WORLD):
 
 def water_column(args, comm=MPI.COMM_WORLD) -> tuple:
     """The tank's basis and the water column of the common flags, for another scheme."""
-    return simulation.build_material(parse_scene(tank(args), source=SCENE), comm)
+    return simulation.build_material(parse_scene(tank(args), source="command line", names=FLAGS), comm)
+
+
+# the scene's keys the flags set, named as flags in messages
+FLAGS = {"time.end": "--end-time", "time.dt": "--dt", "domain.cells": "--cells",
+         "bodies[0].particles_per_cell": "--ppc", "fluid.viscosity": "--viscosity", "solver.pic_blend": "--pic",
+         "solver.volume_correction": "--alpha",
+         "output.folder": "--out", "output.particles_interval": "--output-interval",
+         "output.grid_interval": "--output-interval", "solver.forms": "--forms"}
 
 
 def _petsc_table(petsc_args) -> dict:
@@ -159,6 +170,7 @@ def _petsc_table(petsc_args) -> dict:
 def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
     """Run the dam break of ``args``; returns the summary (also written to summary.json)."""
     scene = scene_of(args, petsc_args)
+    simulation.check_folder(scene.output.folder, comm, args.overwrite, key="--out")  # refused unless --overwrite
     summary = simulation.run_scene(scene, comm, overwrite=True, progress=not args.quiet)
     summary["scheme"] = "implicit"
     compare_front(Path(scene.output.folder), summary, comm)
@@ -167,7 +179,9 @@ def run(args, petsc_args=(), comm=MPI.COMM_WORLD) -> dict:
 
 def record(solver, args, extra: dict, comm=MPI.COMM_WORLD) -> dict:
     """Step another scheme's ``solver`` to ``--end-time`` writing the dam break's outputs."""
-    o = parse_scene(tank(args), source=SCENE).output
+    o = parse_scene(tank(args), source="command line", names=FLAGS).output
+    if simulation.check_folder(o.folder, comm, args.overwrite, key="--out"):
+        output.remove_earlier_outputs(o.folder, comm)
     recorder = Recorder(solver, RecorderOptions(
         folder=Path(o.folder), particles_interval=o.particles_interval, grid_interval=o.grid_interval,
         snapshot_times=o.snapshots, final_snapshot=o.final_snapshot, pressure_scale=o.pressure_scale,

@@ -27,13 +27,15 @@ The field split needs the fields of the interleaved dofs; a solver given ``field
 from __future__ import annotations
 
 import difflib
+import re
 
 import numpy as np
 from petsc4py import PETSc
 
 from fempm.errors import InputError
 
-__all__ = ["DIRECT", "ITERATIVE", "LinearSolver", "SolveFailed", "check_options", "direct_options", "set_options"]
+__all__ = ["DIRECT", "ITERATIVE", "LinearSolver", "SolveFailed", "check_options", "direct_options", "set_options",
+           "writing_option"]
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
 # MUMPS's parallel factorisation schedules its work dynamically, so on several ranks its
@@ -155,9 +157,44 @@ def set_options(options: dict, prefix: str = "fempm_"):
         opts[prefix + name] = value
 
 
+_VIEWER_NAME = re.compile(r"view|monitor|converged_reason|log|dump|save|draw|_lg_|history")
+_WINDOW_NAME = re.compile(r"draw|_lg_")
+
+
+def writing_option(name: str, value: str) -> str | None:
+    """Why the PETSc option ``name = value`` would write a file or open a window (None: it would not).
+
+    PETSc viewers and monitors print to the terminal when their value is empty, ``ascii``,
+    ``ascii:stdout`` or ``ascii:stderr`` (with an optional ``:format``); any other viewer
+    (``binary:A.dat``, ``ascii:log.txt``, ``hdf5:...``, ``draw``, ``vtk:...``, ...) writes a file
+    or draws. Such options are refused, so checking a scene has no side effect.
+    """
+    value = str(value).strip()
+    if _WINDOW_NAME.search(name):
+        return "it draws in a window"
+    viewer_like = _VIEWER_NAME.search(name) is not None
+    if ":" not in value and not viewer_like:
+        return None
+    if value.lower() in ("true", "false", "yes", "no", "1", "0") and ":" not in value:
+        return None  # not a viewer (PETSc says so when the option is tried)
+    for part in value.split(","):
+        kind, _, rest = part.partition(":")
+        target = rest.split(":")[0]
+        kind = kind.strip().lower()
+        if kind == "draw":
+            return "it draws in a window"
+        if kind not in ("", "ascii"):
+            return f"it writes a file (a {kind} viewer)"
+        if target.strip() not in ("", "stdout", "stderr"):
+            return f"it writes the file {target.strip()!r}"
+    return None
+
+
 def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str = "fempm_",
                   where: str = "solver.petsc"):
-    """Raise :class:`InputError` for the first of the option ``names`` PETSc rejects or ignores.
+    """Raise :class:`InputError` for the first of the option ``names`` PETSc rejects or ignores,
+    or that would write a file or open a window (:func:`writing_option`; checked first, nothing
+    runs with it).
 
     The options under ``prefix`` are tried by one solve of a small system with the
     given fields (every rank holds four functions), so options that PETSc reads only
@@ -167,6 +204,15 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
     """
     names = list(names)
     opts = PETSc.Options()
+    given = opts.getAll()  # reading values with getString would mark them used
+    for name in names:
+        value = given.get(prefix + name)
+        value = "" if value is None else str(value)
+        reason = writing_option(name, value)
+        if reason:
+            set_options({}, prefix)
+            raise InputError(f"{where}.{name} = {value!r}: {reason}; PETSc options in a scene may only print to "
+                             f"the terminal (e.g. {name} = \"\" or \"ascii:stdout\")")
     PETSc.Sys.pushErrorHandler("python")  # PETSc prints nothing; the error comes back here
     try:
         _trial_solve(comm, prefix, fields)

@@ -3,7 +3,12 @@
 Every file is written to a temporary name beside its final one and renamed when
 complete, so a run stopped at any moment leaves no half-written file. Only rank 0 writes
 tables, pictures and series files, one file whatever the number of ranks; particles
-and grid samples are gathered to it.
+and grid samples are gathered to it. A file that cannot be written (disk full, no
+permission) raises :class:`OutputError` naming it, on every rank alike.
+
+The files fempm writes are known by name (:data:`OUTPUT_NAMES`): a folder holding some is
+an earlier run's, which a new run replaces only when asked (:func:`earlier_outputs`,
+:func:`remove_earlier_outputs`); other files in the folder are never touched.
 """
 
 from __future__ import annotations
@@ -11,54 +16,155 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
+import shutil
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 
-from fempm.errors import InputError
+from fempm.errors import FempmError, InputError
 
 __all__ = [
+    "OUTPUT_NAMES",
     "GridSeries",
+    "OutputError",
     "ParticleSeries",
+    "agree",
     "atomic_path",
+    "earlier_outputs",
     "gather_particles",
     "prepare_folder",
+    "remove_earlier_outputs",
     "snapshot",
     "write_csv",
     "write_json",
 ]
 
+#: Names of the files and folders a run writes (series, pictures, tables, checkpoint, and the
+#: temporary names of unfinished ones).
+OUTPUT_NAMES = re.compile(
+    r"(particles|grid)(_\d{6}\.(vtp|vti)|\.pvd)|grid\.bp|snapshot_(t\d+\.\d+|final)\.png|checkpoint\.npz"
+    r"|(front|volume|gauges)\.csv|(front|gauges)\.png|summary\.json|\..+\.tmp\d*(\.\w+)?")
+
+
+class OutputError(FempmError):
+    """A file of the run could not be written (disk full, no permission, ...); the message names it."""
+
+
+def agree(comm, error: str | None):
+    """Raise :class:`OutputError` on every rank if rank 0 reports ``error`` (collective)."""
+    error = comm.bcast(error, root=0)
+    if error:
+        raise OutputError(error)
+
+
+def _cannot_write(path, error: OSError | str) -> str:
+    reason = error if isinstance(error, str) else (error.strerror or str(error))
+    return f"cannot write {path}: {reason}"
+
 
 def prepare_folder(folder: str | Path, comm) -> Path:
-    """Create the output folder (all ranks agree), or fail clearly if it is a file."""
+    """Create the output folder (all ranks agree), or fail clearly if it is a file or cannot be made."""
     folder = Path(folder)
     error = None
     if comm.rank == 0:
-        if folder.exists() and not folder.is_dir():
-            error = f"output folder {str(folder)!r} exists and is not a folder"
-        else:
-            try:
+        try:
+            if folder.exists() and not folder.is_dir():
+                error = f"output folder {str(folder)!r} exists and is not a folder"
+            else:
                 folder.mkdir(parents=True, exist_ok=True)
-            except OSError as e:
-                error = f"cannot create output folder {str(folder)!r}: {e.strerror}"
+                if not os.access(folder, os.W_OK | os.X_OK):
+                    error = f"output folder {str(folder)!r} is not writable"
+        except (OSError, ValueError) as e:
+            error = f"cannot create output folder {str(folder)!r}: {getattr(e, 'strerror', None) or e}"
     error = comm.bcast(error, root=0)
     if error:
         raise InputError(error)
     return folder
 
 
+def earlier_outputs(folder: str | Path) -> list[str]:
+    """The names of the files of :data:`OUTPUT_NAMES` in ``folder`` (sorted; none if it does not exist)."""
+    try:
+        return sorted(p.name for p in Path(folder).iterdir() if OUTPUT_NAMES.fullmatch(p.name))
+    except (FileNotFoundError, NotADirectoryError):
+        return []
+
+
+def remove_earlier_outputs(folder: str | Path, comm):
+    """Remove the files a run writes (:data:`OUTPUT_NAMES`) from ``folder``, nothing else (rank 0)."""
+    error = None
+    if comm.rank == 0:
+        for name in earlier_outputs(folder):
+            path = Path(folder) / name
+            try:
+                if path.is_dir() and not path.is_symlink():
+                    shutil.rmtree(path)
+                else:
+                    path.unlink()
+            except OSError as e:
+                error = f"cannot remove the earlier run's {path}: {e.strerror}"
+                break
+    agree(comm, error)
+
+
 @contextmanager
-def atomic_path(path: str | Path):
-    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds."""
+def atomic_path(path: str | Path, complete=None):
+    """Yield a temporary path beside ``path``; rename it to ``path`` if the block succeeds.
+
+    Args:
+        complete: a check of the written temporary file (returns False when the writer
+            stopped short without an error, as VTK's do on a full disk).
+
+    Raises:
+        OutputError: the file could not be written, naming ``path``.
+    """
     path = Path(path)
     tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
     try:
         yield tmp
+        if complete is not None and not complete(tmp):
+            raise OutputError(_cannot_write(path, "the file came out incomplete (is the disk full?)"))
         os.replace(tmp, path)
+    except OSError as e:
+        raise OutputError(_cannot_write(path, e)) from None
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        try:
+            if tmp.exists():
+                tmp.unlink()
+        except OSError:
+            pass
+
+
+def _ends_with(tail: bytes):
+    """A check that a file ends with ``tail`` (after trailing white space)."""
+    def check(path: Path) -> bool:
+        try:
+            with open(path, "rb") as f:
+                f.seek(max(path.stat().st_size - 64, 0))
+                return f.read().rstrip().endswith(tail)
+        except OSError:
+            return False
+    return check
+
+
+@contextmanager
+def _quiet_vtk():
+    """VTK's own error printing off: a failed write is reported once, as :class:`OutputError`."""
+    from vtkmodules.vtkCommonCore import vtkObject
+
+    shown = vtkObject.GetGlobalWarningDisplay()
+    vtkObject.GlobalWarningDisplayOff()
+    try:
+        yield
+    finally:
+        vtkObject.SetGlobalWarningDisplay(shown)
+
+
+_VTK_COMPLETE = _ends_with(b"</VTKFile>")
+_PNG_COMPLETE = _ends_with(b"IEND\xaeB`\x82")
 
 
 def write_csv(path: str | Path, header: list[str], rows, comment: str | None = None):
@@ -120,7 +226,7 @@ class _Series:
         collection = "".join(
             f'    <DataSet timestep="{time!r}" file="{file}"/>\n' for time, file in self.entries
         )
-        with atomic_path(self.folder / f"{self.name}.pvd") as tmp:
+        with atomic_path(self.folder / f"{self.name}.pvd", _VTK_COMPLETE) as tmp:
             tmp.write_text(
                 '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1">\n  <Collection>\n'
                 f"{collection}  </Collection>\n</VTKFile>\n"
@@ -137,10 +243,17 @@ class ParticleSeries(_Series):
         self.fields = tuple(fields)
 
     def write(self, particles, t: float):
-        """Write the particles at time ``t`` and update the index."""
+        """Write the particles at time ``t`` and update the index (collective)."""
         data = gather_particles(particles, self.fields)
-        if data is None:
-            return
+        error = None
+        if data is not None:
+            try:
+                self._write(data, t)
+            except OutputError as e:
+                error = str(e)
+        agree(particles.grid.comm, error)
+
+    def _write(self, data, t: float):
         import pyvista as pv
 
         points = np.column_stack([data["x"], np.zeros(len(data["x"]))])
@@ -149,7 +262,7 @@ class ParticleSeries(_Series):
         for field in self.fields:
             cloud.point_data[field] = _three_d(data[field])
         filename = self._next_file()
-        with atomic_path(self.folder / filename) as tmp:
+        with atomic_path(self.folder / filename, _VTK_COMPLETE) as tmp, _quiet_vtk():
             cloud.save(tmp)
         self._add(t, filename)
 
@@ -193,8 +306,15 @@ class GridSeries(_Series):
         local = (self.nodes, velocity.evaluate(self.cells, self.xi)[:, 0, :],
                  pressure.evaluate(self.cells, self.xi)[:, 0, 0])
         parts = self.comm.gather(local, root=0)
-        if self.comm.rank != 0:
-            return
+        error = None
+        if self.comm.rank == 0:
+            try:
+                self._write(parts, t)
+            except OutputError as e:
+                error = str(e)
+        agree(self.comm, error)
+
+    def _write(self, parts, t: float):
         import pyvista as pv
 
         image = pv.ImageData(dimensions=self.dimensions, spacing=self.spacing, origin=self.origin)
@@ -205,16 +325,19 @@ class GridSeries(_Series):
             out[nodes] = values
             image.point_data[name] = _three_d(out)
         filename = self._next_file()
-        with atomic_path(self.folder / filename) as tmp:
+        with atomic_path(self.folder / filename, _VTK_COMPLETE) as tmp, _quiet_vtk():
             image.save(tmp)
         self._add(t, filename)
 
     def write_vtx(self):
         """The whole series once more as one VTX stream, ``grid.bp`` (DOLFINx/ADIOS2, ParaView's
         VTX reader): velocity and pressure as Lagrange functions of the basis's degree, whose
-        nodes are the image's points. Written to a temporary folder, then renamed."""
-        import shutil
+        nodes are the image's points. Written to a temporary folder, then renamed.
 
+        ADIOS2 aborts the process when a write fails, so the free space and the folder's
+        permission are checked first (:class:`OutputError` if short); a failure that can
+        be caught removes the temporary folder and raises :class:`OutputError`.
+        """
         import pyvista as pv
 
         import dolfinx.fem
@@ -225,6 +348,9 @@ class GridSeries(_Series):
         entries = self.comm.bcast(self.entries, root=0)  # rank 0 keeps the series' index
         if not entries:
             return
+        final = self.folder / f"{self.name}.bp"
+        tmp = self.folder / f".{self.name}.tmp.bp"
+        agree(self.comm, self._room_for_vtx(final, tmp, len(entries)) if self.comm.rank == 0 else None)
         grid, k = self.basis.grid, self.basis.degree
         mesh = grid.mesh
         spaces = {name: dolfinx.fem.functionspace(mesh, lagrange_element(mesh.basix_cell(), k, {name: n}))
@@ -232,38 +358,76 @@ class GridSeries(_Series):
         functions = {name: dolfinx.fem.Function(V, name=name) for name, V in spaces.items()}
         node = np.rint((spaces["pressure"].tabulate_dof_coordinates()[:, :2] - grid.lower) / (grid.h / k))
         point = (node[:, 0] + self.dimensions[0] * node[:, 1]).astype(np.int64)  # image point of each dof
-        final = self.folder / f"{self.name}.bp"
-        tmp = self.folder / f".{self.name}.tmp.bp"
-        if self.comm.rank == 0 and tmp.exists():
-            shutil.rmtree(tmp)
-        self.comm.barrier()
-        writer = dolfinx.io.VTXWriter(self.comm, str(tmp), list(functions.values()), engine="BP4",
-                                      mesh_policy=dolfinx.io.VTXMeshPolicy.reuse)
-        for t, filename in entries:
-            image = pv.read(self.folder / filename)
-            for name, f in functions.items():
-                values = np.asarray(image.point_data[name])
-                f.x.array[:] = (values[point, :2] if values.ndim == 2 else values[point]).ravel()
-            writer.write(t)
-        writer.close()
-        self.comm.barrier()
-        if self.comm.rank == 0:
-            if final.exists():
-                shutil.rmtree(final)
-            os.replace(tmp, final)
-        self.comm.barrier()
+        error = None
+        try:
+            try:
+                writer = dolfinx.io.VTXWriter(self.comm, str(tmp), list(functions.values()), engine="BP4",
+                                              mesh_policy=dolfinx.io.VTXMeshPolicy.reuse)
+                try:
+                    for t, filename in entries:
+                        image = pv.read(self.folder / filename)
+                        for name, f in functions.items():
+                            values = np.asarray(image.point_data[name])
+                            f.x.array[:] = (values[point, :2] if values.ndim == 2 else values[point]).ravel()
+                        writer.write(t)
+                finally:
+                    writer.close()
+            except (RuntimeError, OSError, ValueError) as e:
+                error = _cannot_write(final, " ".join(str(e).split()) or type(e).__name__)
+            errors = self.comm.allreduce([error] if error else [], op=MPI.SUM)
+            if self.comm.rank == 0 and not errors:
+                try:
+                    if final.exists():
+                        shutil.rmtree(final)
+                    os.replace(tmp, final)
+                except OSError as e:
+                    errors = [_cannot_write(final, e)]
+        finally:  # also when interrupted: no hidden folder is left
+            self.comm.barrier()
+            if self.comm.rank == 0:
+                shutil.rmtree(tmp, ignore_errors=True)
+        agree(self.comm, errors[0] if errors else None)
+
+    def _room_for_vtx(self, final: Path, tmp: Path, steps: int) -> str | None:
+        """Why ``grid.bp`` cannot be written (None: it can): no permission, or too little free space."""
+        try:
+            if tmp.exists():
+                shutil.rmtree(tmp)
+            if not os.access(self.folder, os.W_OK | os.X_OK):
+                return _cannot_write(final, "the folder is not writable")
+            points = self.dimensions[0] * self.dimensions[1]
+            # three values per point and step, and the mesh once (coordinates, cells, offsets)
+            needed = 8 * points * (3 * steps + 6) + 65536
+            free = shutil.disk_usage(self.folder).free + (_size(final) if final.exists() else 0)
+        except OSError as e:
+            return _cannot_write(final, e)
+        if free < 1.2 * needed:
+            return _cannot_write(final, f"it needs about {needed / 1e6:.3g} MB and the disk has {free / 1e6:.3g} MB "
+                                        f"free (the .vti series holds the same fields)")
+        return None
+
+
+def _size(folder: Path) -> int:
+    return sum(p.stat().st_size for p in folder.rglob("*") if p.is_file())
 
 
 def snapshot(path: str | Path, particles, field: str = "pressure", title: str = "",
              clim: tuple[float, float] | None = None, point_size: float = 6.0):
-    """A PNG picture of the particles coloured by ``field``, drawn off-screen by pyvista."""
+    """A PNG picture of the particles coloured by ``field``, drawn off-screen by pyvista (collective)."""
     data = gather_particles(particles, (field,))
-    if data is None:
-        return
+    error = None
+    if data is not None:
+        try:
+            _picture(path, particles.grid, data, field, title, clim, point_size)
+        except OutputError as e:
+            error = str(e)
+    agree(particles.grid.comm, error)
+
+
+def _picture(path, grid, data, field, title, clim, point_size):
     os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")  # no X server needed
     import pyvista as pv
 
-    grid = particles.grid
     values = data[field] if data[field].ndim == 1 else np.linalg.norm(data[field], axis=1)
     cloud = pv.PolyData(np.column_stack([data["x"], np.zeros(len(values))]))
     cloud.point_data[field] = values
@@ -282,9 +446,11 @@ def snapshot(path: str | Path, particles, field: str = "pressure", title: str = 
         plotter.add_text(title, position="upper_edge", font_size=12, color="black")
     plotter.view_xy()
     plotter.camera.zoom(1.05)
-    with atomic_path(path) as tmp:
-        plotter.screenshot(str(tmp))
-    plotter.close()
+    try:
+        with atomic_path(path, _PNG_COMPLETE) as tmp, _quiet_vtk():
+            plotter.screenshot(str(tmp))
+    finally:
+        plotter.close()
 
 
 def _cells_as_quads(grid, cells):

@@ -44,7 +44,11 @@ class Rectangle:
 
 @dataclass(frozen=True)
 class Polygon:
-    """A simple polygon given by its vertices in order (even-odd inside test)."""
+    """A simple polygon given by its vertices in order (even-odd inside test).
+
+    Simple: no two edges meet except neighbours at their shared vertex; a polygon whose
+    edges cross (a bow-tie) or touch is refused, whatever area it would enclose.
+    """
 
     vertices: tuple[tuple[float, float], ...]
 
@@ -52,9 +56,25 @@ class Polygon:
         v = np.asarray(self.vertices, dtype=float)
         if v.ndim != 2 or v.shape[0] < 3 or v.shape[1] != 2:
             raise InputError("polygon: needs at least three (x, y) vertices")
-        area = 0.5 * np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])
-        if abs(area) == 0.0:
+        if not np.all(np.isfinite(v)):
+            raise InputError("polygon: the vertices must be finite")
+        repeated = np.flatnonzero(np.all(v == np.roll(v, -1, axis=0), axis=1))
+        if len(repeated):
+            k = int(repeated[0])
+            raise InputError(f"polygon: vertices {k} and {(k + 1) % len(v)} are the same point {v[k].tolist()}")
+        crossing = _crossing_edges(v)
+        if crossing:
+            i, j = crossing
+            raise InputError(f"polygon: edges {i} ({v[i].tolist()}..{v[(i + 1) % len(v)].tolist()}) and {j} "
+                             f"({v[j].tolist()}..{v[(j + 1) % len(v)].tolist()}) cross or touch: the polygon "
+                             f"must be simple (its edges meet only at shared vertices)")
+        if self.area() == 0.0:
             raise InputError("polygon: the vertices enclose no area")
+
+    def area(self) -> float:
+        """The enclosed area (shoelace formula)."""
+        v = np.asarray(self.vertices, dtype=float)
+        return float(abs(0.5 * np.sum(v[:, 0] * np.roll(v[:, 1], -1) - np.roll(v[:, 0], -1) * v[:, 1])))
 
     def contains(self, x: np.ndarray) -> np.ndarray:
         """Boolean mask of the points inside."""
@@ -71,6 +91,37 @@ class Polygon:
         """``(lower, upper)`` corners of the bounding box."""
         v = np.asarray(self.vertices, dtype=float)
         return v.min(axis=0), v.max(axis=0)
+
+
+def _crossing_edges(v: np.ndarray) -> tuple[int, int] | None:
+    """The first pair of edges ``(i, j)`` of the closed polygon ``v`` that meet other than at a vertex
+    the two share as neighbours: a crossing, a touch, or neighbours folding back along each other."""
+    n = len(v)
+    a, d = v, np.roll(v, -1, axis=0) - v  # edge k runs from a[k] to a[k] + d[k]
+    i, j = np.triu_indices(n, 1)
+    scale = float(np.abs(v).max() + np.ptp(v, axis=0).max())
+    tol = 1e-12 * scale**2  # of a cross product of two edge-sized vectors
+
+    def cross(u, w):
+        return u[..., 0] * w[..., 1] - u[..., 1] * w[..., 0]
+
+    def side(o):  # -1, 0 or 1: a point right of, on, or left of a line
+        return np.where(o > tol, 1, np.where(o < -tol, -1, 0))
+
+    def within(p, s, e):  # p in the box of segment s..e
+        margin = 1e-12 * scale
+        return np.all((p >= np.minimum(s, e) - margin) & (p <= np.maximum(s, e) + margin), axis=-1)
+
+    b = a + d
+    s1, s2 = side(cross(d[i], a[j] - a[i])), side(cross(d[i], b[j] - a[i]))
+    s3, s4 = side(cross(d[j], a[i] - a[j])), side(cross(d[j], b[i] - a[j]))
+    proper = (s1 * s2 < 0) & (s3 * s4 < 0)
+    touch = (((s1 == 0) & within(a[j], a[i], b[i])) | ((s2 == 0) & within(b[j], a[i], b[i]))
+             | ((s3 == 0) & within(a[i], a[j], b[j])) | ((s4 == 0) & within(b[i], a[j], b[j])))
+    neighbours = (j == i + 1) | ((i == 0) & (j == n - 1))
+    folds = (np.abs(cross(d[i], d[j])) <= tol) & (np.einsum("kc,kc->k", d[i], d[j]) < 0)
+    hit = np.flatnonzero(np.where(neighbours, folds, proper | touch))
+    return (int(i[hit[0]]), int(j[hit[0]])) if len(hit) else None
 
 
 def sub_cell_centres(origins: np.ndarray, h: float, per_cell: int) -> np.ndarray:
@@ -161,7 +212,8 @@ class Particles:
             body: a :class:`Rectangle` or :class:`Polygon` inside the grid.
             per_cell: particles per cell and direction.
             density: mass density; ``volume = h**2 / per_cell**2``, ``mass = density * volume``.
-            **values: initial values of other fields (scalars or per-component sequences).
+            **values: initial values of other fields (scalars or per-component sequences), or
+                functions of the positions ``(n, 2)`` returning them (an initial velocity field).
 
         Returns:
             The number of particles seeded on all ranks.
@@ -187,6 +239,7 @@ class Particles:
         ids = (self._next_id + cells[:, None] * n * n + np.arange(n * n)).ravel()[keep]
         self._bodies.append(body)
         self._next_id += g.num_cells * n * n
+        values = {name: value(x[keep]) if callable(value) else value for name, value in values.items()}
         return self.add_points(x[keep], g.h**2 / n**2, density, ids=ids, **values)
 
     def add_points(self, x, volume, density: float = 1.0, ids=None, **values) -> int:

@@ -5,7 +5,10 @@ Works with any solver that is a :class:`~fempm.stepper.Stepper` (``step()``, ``t
 ``pressure`` (grid functions) and ``max_divergence``.
 
 Files are due by step count (an interval of ``k`` steps writes at steps 0, k, 2k, ...),
-so a run resumed from a checkpoint writes exactly what the uninterrupted run writes.
+so a run resumed from a checkpoint writes exactly what the uninterrupted run writes; the
+wall times in the summary add up over the parts of a resumed run. A file that cannot be
+written (:class:`fempm.output.OutputError`) stops the run like a divergence, with the
+file named in the cause.
 """
 
 from __future__ import annotations
@@ -15,9 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from mpi4py import MPI
 
 from fempm import diagnostics, output
 from fempm.errors import SimulationDiverged
+from fempm.output import OutputError
 from fempm.progress import Progress
 
 __all__ = ["Recorder", "RecorderOptions", "run", "steps_between"]
@@ -68,6 +73,28 @@ class Recorder:
         self.particle_series = output.ParticleSeries(self.folder) if self.particles_every else None
         self.grid_series = output.GridSeries(self.folder, solver.basis) if self.grid_every else None
         self.snapshot_steps = {round(t / dt): t for t in options.snapshot_times}
+        self.wall_before, self.phases_before = 0.0, {}  # of the earlier parts of a resumed run
+        self._started = None
+
+    def start_clock(self):
+        """Start counting this part's wall time (the run loop calls it)."""
+        self._started = time.perf_counter()
+
+    def wall_time(self) -> float:
+        """Wall seconds of this part of the run so far (this rank's clock)."""
+        return time.perf_counter() - self._started if self._started is not None else 0.0
+
+    def _times(self, part: float) -> tuple[float, float, dict[str, float]]:
+        """This part's wall time, the run's (earlier parts included) and the run's by phase, each the
+        largest over the ranks, so that every rank reports the same (collective)."""
+        comm = self.solver.grid.comm
+        part = comm.allreduce(part, op=MPI.MAX)
+        local = dict(self.solver.timings)
+        names = sorted(set().union(*comm.allgather(list(local))))
+        phases = dict(self.phases_before)
+        for name in names:
+            phases[name] = phases.get(name, 0.0) + comm.allreduce(local.get(name, 0.0), op=MPI.MAX)
+        return part, self.wall_before + part, phases
 
     def record(self):
         """Take the measures of the current state; write the files due at this step."""
@@ -88,26 +115,32 @@ class Recorder:
                             clim=self.options.pressure_scale)
 
     def write_histories(self):
-        """Write ``front.csv`` and ``volume.csv`` with the histories so far (rank 0)."""
+        """Write ``front.csv`` and ``volume.csv`` with the histories so far (rank 0 writes; collective)."""
         grid = self.solver.grid
-        if grid.comm.rank != 0:
-            return
-        h, floor = grid.h, grid.upper[0] - grid.lower[0]
-        output.write_csv(self.folder / "front.csv", ["t", "front_m"], self.front,
-                         comment="surge front: largest particle x plus half a particle spacing")
-        output.write_csv(self.folder / "volume.csv",
-                         ["t", "occupied_cells", "occupied_area_m2", "mean_depth_m", "surface_height_m"],
-                         [(t, c, c * h * h, c * h * h / floor, z) for t, c, z in self.cells],
-                         comment="cells holding particles; mean depth = occupied area / floor width; "
-                                 "surface height = median over columns of the top particle's top")
+        error = None
+        if grid.comm.rank == 0:
+            h, floor = grid.h, grid.upper[0] - grid.lower[0]
+            try:
+                output.write_csv(self.folder / "front.csv", ["t", "front_m"], self.front,
+                                 comment="surge front: largest particle x plus half a particle spacing")
+                output.write_csv(self.folder / "volume.csv",
+                                 ["t", "occupied_cells", "occupied_area_m2", "mean_depth_m", "surface_height_m"],
+                                 [(t, c, c * h * h, c * h * h / floor, z) for t, c, z in self.cells],
+                                 comment="cells holding particles; mean depth = occupied area / floor width; "
+                                         "surface height = median over columns of the top particle's top")
+            except OutputError as e:
+                error = str(e)
+        output.agree(grid.comm, error)
 
     def state(self) -> dict:
-        """Everything :meth:`restore` needs to continue these histories and series (JSON-able)."""
+        """Everything :meth:`restore` needs to continue these histories and series (JSON-able; collective)."""
+        _, total, phases = self._times(self.wall_time())
         return {
             "front": self.front, "cells": self.cells, "pressure_min": self.pressure_min,
             "pressure_max": self.pressure_max, "max_divergence": self.max_divergence,
             "particle_series": self.particle_series.entries if self.particle_series else [],
             "grid_series": self.grid_series.entries if self.grid_series else [],
+            "wall_time_s": total, "wall_time_by_phase_s": phases,
         }
 
     def restore(self, state: dict):
@@ -119,18 +152,38 @@ class Recorder:
         for series, key in ((self.particle_series, "particle_series"), (self.grid_series, "grid_series")):
             if series:
                 series.entries = [(t, f) for t, f in state[key]]
+        self.wall_before = float(state.get("wall_time_s", 0.0))  # absent from checkpoints before it was kept
+        self.phases_before = dict(state.get("wall_time_by_phase_s", {}))
 
     def close(self, status: str, cause: str | None, wall: float) -> dict:
-        """Write the histories, the final picture and summary.json; return the summary."""
+        """Write the histories, the VTX stream, the final picture and summary.json; return the summary.
+
+        ``wall`` is the wall time of this part of the run (the summary adds the earlier parts'
+        of a resumed run). A file that cannot be written turns a completed run into a stopped
+        one with that cause; the others are still tried.
+        """
         s = self.solver
         h, floor = s.grid.h, s.grid.upper[0] - s.grid.lower[0]
-        self.write_histories()
+
+        def attempt(write):
+            nonlocal status, cause
+            try:
+                write()
+            except OutputError as e:
+                if status != "stopped":
+                    status, cause = "stopped", str(e)
+
+        attempt(self.write_histories)
         if self.grid_series:
-            self.grid_series.write_vtx()
+            attempt(self.grid_series.write_vtx)
+        if self.options.final_snapshot:
+            attempt(lambda: output.snapshot(self.folder / "snapshot_final.png", s.particles,
+                                            title=f"t = {s.time:.3f} s ({status})", clim=self.options.pressure_scale))
+        part, total, phases = self._times(wall)
         summary = {
             "status": status, "cause": cause, "time": s.time, "steps": s.steps,
             "particles": s.particles.global_count(), "basis": s.basis.name, "ranks": s.grid.comm.size,
-            "wall_time_s": wall, "wall_time_by_phase_s": dict(s.timings),
+            "wall_time_s": total, "wall_time_this_part_s": part, "wall_time_by_phase_s": phases,
             "pressure_min_Pa": self.pressure_min, "pressure_max_Pa": self.pressure_max,
             "max_abs_div_v_per_s": self.max_divergence,
             "occupied_cells_initial": self.cells[0][1], "occupied_cells_final": self.cells[-1][1],
@@ -139,11 +192,15 @@ class Recorder:
             "wall_stops": s.walls.stops,
             **self.options.extra,
         }
-        if self.options.final_snapshot:
-            output.snapshot(self.folder / "snapshot_final.png", s.particles,
-                            title=f"t = {s.time:.3f} s ({status})", clim=self.options.pressure_scale)
+        error = None
         if s.grid.comm.rank == 0:
-            output.write_json(self.folder / "summary.json", summary)
+            try:
+                output.write_json(self.folder / "summary.json", summary)
+            except OutputError as e:
+                error = str(e)
+        error = s.grid.comm.bcast(error, root=0)
+        if error and summary["status"] != "stopped":
+            summary.update(status="stopped", cause=error)
         return summary
 
 
@@ -171,9 +228,10 @@ def run(solver, end_time: float, recorder: Recorder, progress: bool = True, chec
     n_steps = int(round((end_time - solver.time) / solver.dt))
     status, cause = "completed", None
     wall0 = time.perf_counter()
-    if not recorder.front:
-        recorder.record()
+    recorder.start_clock()
     try:
+        if not recorder.front:
+            recorder.record()
         for _ in range(n_steps):
             start = time.perf_counter()
             solver.step()
@@ -186,11 +244,14 @@ def run(solver, end_time: float, recorder: Recorder, progress: bool = True, chec
             if request:
                 status, cause = "interrupted", f"{request} at t = {solver.time:.6g} s (step {solver.steps})"
                 break
-    except SimulationDiverged as e:
+    except (SimulationDiverged, OutputError) as e:
         status, cause = "stopped", str(e)
     finally:
         if bar:
             bar.close()
     if checkpoints and status != "stopped":
-        checkpoints.finish(solver, recorder, status)
+        try:
+            checkpoints.finish(solver, recorder, status)
+        except OutputError as e:
+            status, cause = "stopped", str(e)
     return recorder.close(status, cause, time.perf_counter() - wall0)

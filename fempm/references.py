@@ -1,6 +1,7 @@
 """Reference data of the verification cases, and the dam break's front measure.
 
-The files live in the repository's ``data/reference`` (see its README). Dam-break fronts
+The files live in the repository's ``data/reference`` (see its README), installed with the
+package as ``fempm.data``. Dam-break fronts
 are handled in the dimensionless form of Koshizuka & Oka (1996), ``T = t sqrt(2 g / L)``
 and ``Z = x / L`` with ``L`` the column's width.
 
@@ -12,6 +13,7 @@ times in ``T_min < T <= T_max``; against the interFoam 160 x 160 run the window 
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +21,16 @@ import numpy as np
 __all__ = ["DAMBREAK_COLUMN_WIDTH", "REFERENCE_DIR", "dambreak_front", "dimensionless_front", "front_difference",
            "interfoam_front", "interfoam_probes"]
 
-REFERENCE_DIR = Path(__file__).resolve().parents[1] / "data" / "reference"
+
+def _reference_dir() -> Path:
+    """``data/reference`` of the repository, installed as ``fempm.data``; from a source tree beside ``fempm/``."""
+    spec = importlib.util.find_spec("fempm.data")
+    if spec is not None and spec.submodule_search_locations:
+        return Path(list(spec.submodule_search_locations)[0]).resolve() / "reference"
+    return Path(__file__).resolve().parents[1] / "data" / "reference"
+
+
+REFERENCE_DIR = _reference_dir()
 DAMBREAK_COLUMN_WIDTH = 0.146  #: L of the seed's dam break (Koshizuka & Oka 1996), m
 GRAVITY = 9.81
 

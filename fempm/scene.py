@@ -11,29 +11,41 @@ checkpoint stores it).
 Checks that need geometry are done here too, by arithmetic on the structured grid
 (no mesh is built): bodies and obstacles inside the domain, bodies at least two
 cells across and seeding at least one particle, bodies clear of obstacle cells,
-obstacles covering at least one cell centre.
+obstacles covering at least one cell centre. Before any of them, :func:`estimate`
+sizes the run from the scene alone (cells, unknowns, matrix entries, particles, steps),
+so a scene too large for the machine is refused before anything is allocated.
+Checking touches nothing on disk: the output folder is only examined, and a scene names
+its forms by the bare name of a shipped file (a file of one's own is code, and is given
+explicitly, ``forms=``).
 """
 
 from __future__ import annotations
 
 import difflib
 import math
+import os
+import re
 import tomllib
-from dataclasses import MISSING, asdict, dataclass, fields, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import numpy as np
 
 from fempm.errors import InputError
-from fempm.formsfile import FORMS_DIR
+from fempm.expressions import Expression
+from fempm.formsfile import forms_path, shipped_forms
 from fempm.grid import cell_counts, square_cell_size
-from fempm.options import Scheme
+from fempm.options import FLUID_REGION_CELLS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
-from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, fraction, key, non_negative,
-                          petsc_table, point, points, positive, square_count, text, times)
+from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, folder_name, forms_name, fraction,
+                          in_range, key, non_negative, petsc_table, point, points, positive, range_pair,
+                          square_count, text, times, velocity)
 
-__all__ = ["Body", "Domain", "Fluid", "Obstacle", "Output", "Scene", "Solver", "Time", "Walls",
-           "load_scene", "parse_scene", "scene_from_text", "to_toml"]
+__all__ = ["Body", "Domain", "Estimate", "Fluid", "MAX_STEPS", "Obstacle", "Output", "Scene", "Solver", "Time",
+           "Walls", "available_memory", "estimate", "load_scene", "parse_scene", "scene_from_text",
+           "seeded_bodies", "to_toml"]
+
+MAX_STEPS = 10**8  #: more steps than this in one run are refused (a mistaken time.dt or time.end)
 
 # -- the sections ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
@@ -81,7 +93,21 @@ class Body(_Shaped):
     upper: tuple[float, float] | None = key(point, None, unit="m")
     vertices: tuple[tuple[float, float], ...] | None = key(points, None, unit="m")
     particles_per_cell: int = key(square_count, 4)
-    velocity: tuple[float, float] = key(point, (0.0, 0.0), unit="m/s")
+    velocity: tuple[float | str, float | str] = key(velocity, (0.0, 0.0), unit="m/s")
+
+    def velocity_at(self, x: np.ndarray) -> np.ndarray:
+        """The initial velocity at the points ``x`` ``(n, 2)``: numbers, or expressions of x and y."""
+        return np.column_stack([Expression(v)(x) if isinstance(v, str) else np.full(len(x), v)
+                                for v in self.velocity])
+
+    def initial_velocity(self):
+        """What :meth:`fempm.Particles.seed` takes: the pair of numbers, or the field as a function."""
+        return self.velocity_at if any(isinstance(v, str) for v in self.velocity) else self.velocity
+
+    def asked_area(self) -> float:
+        """The area of the body's shape (m^2)."""
+        shape = self.geometry()
+        return shape.area() if isinstance(shape, Polygon) else float(np.prod(np.subtract(self.upper, self.lower)))
 
 
 @dataclass(frozen=True)
@@ -139,9 +165,10 @@ class Solver:
     pspg: bool = key(boolean, True)
     volume_correction: float = key(fraction, Scheme.alpha)
     pic_blend: float = key(fraction, Scheme.pic_blend)
-    newmark_beta: float = key(positive, Scheme.beta)
-    newmark_gamma: float = key(positive, Scheme.gamma)
-    forms: str = key(text, "incompressible")
+    newmark_beta: float = key(in_range(0, 0.5), Scheme.beta)
+    newmark_gamma: float = key(in_range(0, 1), Scheme.gamma)
+    pressure_limit: float | None = key(positive, None, unit="Pa")
+    forms: str = key(forms_name, "incompressible")
     petsc: dict = key(petsc_table, {})
 
 
@@ -149,13 +176,13 @@ class Solver:
 class Output:
     """What a run writes, and how often (intervals in simulated seconds; absent: not written)."""
 
-    folder: str = key(text)
+    folder: str = key(folder_name)
     progress: bool = key(boolean, True)
     particles_interval: float | None = key(positive, None, unit="s")
     grid_interval: float | None = key(positive, None, unit="s")
     snapshots: tuple[float, ...] = key(times, (), unit="s")
     final_snapshot: bool = key(boolean, False)
-    pressure_scale: tuple[float, float] | None = key(point, None, unit="Pa")
+    pressure_scale: tuple[float, float] | None = key(range_pair, None, unit="Pa")
     checkpoint_interval: float | None = key(positive, None, unit="s")
 
 
@@ -173,6 +200,7 @@ class Scene:
     time: Time
     solver: Solver
     output: Output
+    notes: tuple[str, ...] = field(default=(), compare=False)  # what the reading changed, to tell the user
 
     def blocked_cells(self) -> np.ndarray:
         """Structured indices of all obstacle cells."""
@@ -186,53 +214,91 @@ _LISTS = {"bodies": Body, "obstacles": Obstacle}
 
 
 # -- reading ------------------------------------------------------------------------------------------
-def load_scene(path: str | Path, folder: str | Path | None = None, end_time: float | None = None) -> Scene:
-    """Read and check the scene file ``path``; ``folder`` and ``end_time`` override
-    ``output.folder`` and ``time.end``."""
+def load_scene(path: str | Path, folder: str | Path | None = None, end_time: float | None = None,
+               forms: str | Path | None = None, max_memory: float | None = None, ranks: int = 1,
+               available: float | None = None) -> Scene:
+    """Read and check the scene file ``path``.
+
+    Args:
+        folder, end_time: override ``output.folder`` and ``time.end``. Snapshots after an
+            ``end_time`` given here are left out, and a note in ``Scene.notes`` says so.
+        forms: a forms file of the user's own (a path to a ``.py`` file: code that runs),
+            used instead of ``solver.forms``.
+        max_memory: refuse a scene whose estimated memory exceeds this (GB); default the
+            memory available (see :func:`check_size`).
+        ranks: the number of MPI ranks the run will use (for the memory estimate).
+        available: the memory available (GB), read once for all ranks (see :func:`check_size`).
+    """
+    name = str(path)
+    if "\0" in name:
+        raise InputError(f"scene file {name!r}: a file name cannot hold a NUL character")
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"scene file {str(path)!r} does not exist" if not path.exists()
-                         else f"scene file {str(path)!r} is not a file")
     try:
+        if not path.is_file():
+            raise InputError(f"scene file {name!r} does not exist" if not path.exists()
+                             else f"scene file {name!r} is not a file")
         text = path.read_text()
     except UnicodeDecodeError:
         raise InputError(f"{path}: not a text file") from None
-    return scene_from_text(text, path, folder, end_time)
+    except OSError as e:
+        raise InputError(f"scene file {name!r} cannot be read ({e.strerror})") from None
+    return scene_from_text(text, path, folder, end_time, forms, max_memory, ranks, available)
 
 
 def scene_from_text(text: str, source: str | Path, folder: str | Path | None = None,
-                    end_time: float | None = None) -> Scene:
+                    end_time: float | None = None, forms: str | Path | None = None,
+                    max_memory: float | None = None, ranks: int = 1, available: float | None = None) -> Scene:
     """Check a scene given as TOML text (see :func:`load_scene`)."""
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
         raise InputError(f"{source}: not valid TOML: {e}") from None
+    notes = []
     if folder is not None:
         data.setdefault("output", {})["folder"] = str(folder)
     if end_time is not None:
         data.setdefault("time", {})["end"] = end_time
-    return parse_scene(data, source=source)
+        output = data.get("output", {})
+        snapshots = output.get("snapshots") if isinstance(output, dict) else None
+        if isinstance(snapshots, list) and all(isinstance(s, int | float) for s in snapshots):
+            late = [s for s in snapshots if s > end_time * (1 + 1e-9)]
+            if late:
+                output["snapshots"] = [s for s in snapshots if s not in late]
+                notes.append(f"the end time {end_time:g} s comes before output.snapshots "
+                             f"{', '.join(f'{s:g}' for s in late)} s: not taken")
+    scene = parse_scene(data, source=source, forms=forms, max_memory=max_memory, ranks=ranks, available=available)
+    return replace(scene, notes=tuple(notes)) if notes else scene
 
 
-def parse_scene(data: dict, source: str | Path = "scene") -> Scene:
+def parse_scene(data: dict, source: str | Path = "scene", forms: str | Path | None = None,
+                max_memory: float | None = None, ranks: int = 1, names: dict[str, str] | None = None,
+                available: float | None = None) -> Scene:
     """Check a scene given as the dictionary of its TOML file and resolve its defaults.
 
-    Relative ``solver.forms`` files are taken from the folder of ``source``.
+    Args:
+        forms: a forms file of the user's own, used instead of ``solver.forms`` (see :func:`load_scene`).
+        max_memory, ranks, available: see :func:`load_scene`.
+        names: what to call keys in messages, e.g. ``{"time.dt": "--dt"}`` when a program
+            made the scene from its command line.
 
     Raises:
         InputError: the first mistake, as ``source: key = value: what is allowed``.
     """
     source = Path(source)
     try:
-        scene = _parse(data, source)
+        scene = _parse(data, source, forms)
+        check_size(scene, max_memory, ranks, available)
         _check_geometry(scene)
         _check_times(scene)
     except InputError as e:
-        raise InputError(f"{source}: {e}") from None
+        message = str(e)
+        for name, flag in (names or {}).items():
+            message = re.sub(rf"(?<![\w.]){re.escape(name)}(?![\w\[])", flag, message)
+        raise InputError(f"{source}: {message}") from None
     return scene
 
 
-def _parse(data: dict, source: Path) -> Scene:
+def _parse(data: dict, source: Path, forms: str | Path | None) -> Scene:
     _unknown(data, [*_TOP, *_SECTIONS, *_LISTS], "the scene")
     values = {}
     for name, check in _TOP.items():
@@ -245,6 +311,8 @@ def _parse(data: dict, source: Path) -> Scene:
             raise InputError(f"{name} must be a table [{name}], got {table!r}")
         if name == "output":
             table = {"folder": f"results/{values['name'].replace(' ', '_')}", **table}
+        if name == "solver" and forms is not None:
+            table = {k: v for k, v in table.items() if k != "forms"}  # the user's own file replaces it
         values[name] = _section(cls, table, name)
     for name, cls in _LISTS.items():
         tables = data.get(name, [])
@@ -254,17 +322,30 @@ def _parse(data: dict, source: Path) -> Scene:
     if not values["bodies"]:
         raise InputError("the scene has no fluid: add at least one [[bodies]] table")
     solver = values["solver"]
-    if solver.forms.endswith(".py") and not Path(solver.forms).is_absolute():
-        solver = replace(solver, forms=str((source.parent / solver.forms).resolve()))
-        values["solver"] = solver
-    forms = Path(solver.forms) if solver.forms.endswith(".py") else FORMS_DIR / f"{solver.forms}.py"
-    if not forms.is_file():
-        raise InputError(f"solver.forms = {solver.forms!r}: no such forms file ({forms}); give a bare name "
-                         f"of forms/ (e.g. 'incompressible') or a path ending in .py")
-    folder = Path(values["output"].folder)
-    if folder.exists() and not folder.is_dir():
-        raise InputError(f"output.folder = {str(folder)!r}: exists and is not a folder; name a folder")
+    if forms is not None:
+        values["solver"] = replace(solver, forms=str(forms_path(forms, "--forms")))
+    elif solver.forms not in shipped_forms():
+        raise InputError(f"solver.forms = {solver.forms!r}: no shipped forms of that name; shipped: "
+                         f"{', '.join(shipped_forms())} (a file of your own: --forms PATH)")
+    _check_folder(values["output"].folder)
     return Scene(**values)
+
+
+def _check_folder(name: str):
+    """The output folder can be made and written, judged without touching the disk."""
+    path = Path(name)
+    try:
+        if path.exists() and not path.is_dir():
+            raise InputError(f"output.folder = {name!r}: exists and is not a folder; name a folder")
+        existing = path.absolute()
+        while not existing.exists():
+            existing = existing.parent
+        if not existing.is_dir():
+            raise InputError(f"output.folder = {name!r}: cannot be made: {str(existing)!r} is a file")
+        if not os.access(existing, os.W_OK | os.X_OK):
+            raise InputError(f"output.folder = {name!r}: cannot be written: {str(existing)!r} is not writable")
+    except OSError as e:
+        raise InputError(f"output.folder = {name!r}: cannot be used ({e.strerror})") from None
 
 
 def _unknown(table: dict, allowed, where: str):
@@ -322,16 +403,210 @@ def _check_shape_keys(item: _Shaped, table: dict, where: str):
             raise InputError(f"{where}: {e}") from None
 
 
+# -- the grid: square cells whose outer faces are the walls -------------------------------------------
+def _grid_key(d: Domain) -> str:
+    return "domain.cells" if d.cells else "domain.cell_size"
+
+
+def _resolve_grid(d: Domain) -> tuple[int, int, float]:
+    """``(nx, ny, h)`` of the domain, or a message giving the nearest tank sizes that fit.
+
+    The cells are square and the grid's outer faces are the tank's walls (the walls hold the
+    velocity of the boundary functions, and particles stop at the grid's faces), so each side
+    must be a whole number of cells: a tank that is not is refused, not cut or extended.
+    """
+    if (d.cells is None) == (d.cell_size is None):
+        raise InputError("domain: give exactly one of cells = [nx, ny] and cell_size = h")
+    size = np.subtract(d.upper, d.lower)
+    if not np.all(np.isfinite(size)):
+        raise InputError(f"domain: the tank {list(d.lower)}..{list(d.upper)} is larger than floating point holds")
+    if np.any(size <= 0):
+        raise InputError(f"domain.upper {list(d.upper)} must exceed domain.lower {list(d.lower)}")
+    if d.cells:
+        nx, ny = d.cells
+        hx, hy = size[0] / nx, size[1] / ny
+        if abs(hx - hy) > 1e-9 * max(hx, hy):
+            fit = d.lower[1] + ny * hx
+            raise InputError(f"domain.cells = {list(d.cells)}: the cells must be square, but they would be "
+                             f"{hx:g} x {hy:g} m; for square cells of {hx:g} m take domain.upper = "
+                             f"[{d.upper[0]:g}, {fit:.10g}] or cells = [{nx}, {max(round(size[1] / hx), 1)}] "
+                             f"(then the height is {max(round(size[1] / hx), 1) * hx:.10g} m)")
+        return nx, ny, float(hx)
+    h = d.cell_size
+    counts = size / h
+    if np.any(counts > 1e15):
+        return int(min(counts[0], 2**62)), int(min(counts[1], 2**62)), h  # refused by the size estimate
+    bad = [(k, n) for k, n in enumerate(counts) if abs(round(n) - n) > 1e-9 * n or round(n) < 1]
+    if bad:
+        k, n = bad[0]
+        side = ("width", "height")[k]
+        low, high = max(math.floor(n), 1), max(math.ceil(n), 1)
+        raise InputError(f"domain.cell_size = {h:g}: the {side} {size[k]:g} m is not a whole number of cells "
+                         f"({n:.6g}); the cells are square and the tank's faces are the walls: take "
+                         f"domain.upper[{k}] = {d.lower[k] + low * h:.10g} or {d.lower[k] + high * h:.10g} "
+                         f"({low} or {high} cells), or a cell size dividing {size[k]:g} (e.g. {size[k] / high:.6g})")
+    return int(round(counts[0])), int(round(counts[1])), h
+
+
+# -- the size of a run, from the scene alone ---------------------------------------------------------------
+@dataclass(frozen=True)
+class Estimate:
+    """What a scene asks of the machine, worked out before anything is allocated.
+
+    ``memory_gb`` is the peak resident memory summed over the ranks at the start of the
+    run (matrix on the water's cells where the grid is large, see ``matrix_region``);
+    ``memory_full_gb`` the same with the matrix on the whole grid (the water spread over
+    the tank). The coefficients were fitted to the peak memory of runs of the dam-break
+    scene refined (see tests/test_faults.py).
+    """
+
+    cells: float
+    functions: float
+    unknowns: float
+    particles: float
+    matrix_entries: float
+    matrix_entries_full: float
+    steps: float
+    ranks: int
+    memory_gb: float
+    memory_full_gb: float
+    key: str  # the key that most of the memory comes from
+    value: object
+
+    def summary(self) -> str:
+        """One line for ``fempm check``."""
+        return (f"about {self.memory_gb:.2g} GB of memory at the start ({self.memory_full_gb:.2g} GB if the water "
+                f"spreads over the whole tank): {self.cells:.3g} cells, {self.unknowns:.3g} unknowns, "
+                f"{self.matrix_entries:.3g} matrix entries, {self.particles:.3g} particles, "
+                f"{self.steps:.3g} steps, {self.ranks} rank(s)")
+
+
+# Fitted (least squares of the relative error) to the peak resident memory of 11 runs of the dam-break
+# scene refined (serial, B-spline, 40^2 to 640^2 cells, 800 to 2e5 particles, direct and iterative,
+# no output files; see tests/test_faults.py).
+_BASE = 0.25e9  # bytes per rank: Python, DOLFINx, PETSc, numba, the compiled forms
+_PER_CELL = 1.37e3  # the grid, its numbering and the matrix layout (whole grid, whatever the matrix region)
+_PER_ENTRY = 11.5  # per matrix entry (value and column index)
+_PER_PARTICLE = 2.14e3  # fields, tabulated basis jets, packed kernel data
+_PER_FACTOR = 316.0  # MUMPS: per unit of n log2(n), n the free unknowns (nested-dissection fill)
+
+
+def estimate(scene: Scene, ranks: int = 1) -> Estimate:
+    """The size of the run of ``scene`` on ``ranks`` ranks (see :class:`Estimate`); nothing is allocated.
+
+    Water cells are the cells under each body's box; the free unknowns three per function
+    over them; the matrix has ``(2k + 1)^2`` functions of three unknowns per row (k the
+    degree), on the whole grid, or above :data:`fempm.options.FLUID_REGION_CELLS` cells on
+    the water's cells widened by the margin ``ImplicitSolver`` uses.
+    """
+    d = scene.domain
+    nx, ny, h = _resolve_grid(d)
+    k = 2 if scene.solver.basis == "bspline" else 1
+    cells = float(nx) * float(ny)
+    functions = (nx + k) * float(ny + k)
+    bs = 3  # (du, p): two velocity components and the pressure
+    per_row = (2 * k + 1) ** 2 * bs * bs  # entries per function (its bs rows)
+    margin = max(2 * (k + 1), math.ceil(0.05 * max(nx, ny)))
+    water, region, particles, most = 0.0, 0.0, 0.0, (-1.0, 0)
+    for i, body in enumerate(scene.bodies):
+        lo, up = (np.clip(b, d.lower, d.upper) for b in body.geometry().bounds())
+        bx, by = (float(n) for n in np.maximum(np.ceil((up - lo) / h), 1))
+        seeded = min(body.asked_area() / (h * h), bx * by) * body.particles_per_cell
+        particles += seeded
+        water += (bx + k) * (by + k)
+        region += (bx + 2 * margin + k) * (by + 2 * margin + k)
+        most = max(most, (seeded, i))
+    water = min(water, functions)
+    region = min(region, functions) if cells > FLUID_REGION_CELLS else functions
+    free = bs * water
+    factor = _PER_FACTOR * free * math.log2(max(free, 2.0)) if scene.solver.linear == "direct" else 0.0
+    copies = ranks if scene.solver.linear == "direct" else 1  # on several ranks each factors a copy
+
+    def total(rows):
+        return (ranks * _BASE + _PER_CELL * cells + _PER_ENTRY * per_row * rows + _PER_PARTICLE * particles
+                + copies * factor) / 1e9
+
+    grid_part = _PER_CELL * cells + _PER_ENTRY * per_row * region + copies * factor
+    if _PER_PARTICLE * most[0] > grid_part:
+        key_name, value = f"bodies[{most[1]}].particles_per_cell", scene.bodies[most[1]].particles_per_cell
+    else:
+        key_name, value = _grid_key(d), (list(d.cells) if d.cells else d.cell_size)
+    steps = scene.time.end / scene.time.dt
+    return Estimate(cells, functions, bs * functions, particles, per_row * region, per_row * functions, steps,
+                    ranks, total(region), total(functions), key_name, value)
+
+
+def available_memory() -> float | None:
+    """Memory available to a new process now (GB): ``MemAvailable`` of /proc/meminfo (None: unknown)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024 / 1e9
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_size(scene: Scene, max_memory: float | None = None, ranks: int = 1,
+               available: float | None = None) -> Estimate:
+    """Refuse a scene too large for the machine or with an absurd number of steps; returns the estimate.
+
+    Args:
+        max_memory: the limit in GB (``--max-memory``); default the memory available.
+        available: the memory available (GB); default :func:`available_memory` now. A
+            program on several ranks reads it once and passes it, so that all ranks agree.
+    """
+    t = scene.time
+    steps = t.end / t.dt
+    if not steps <= MAX_STEPS:
+        raise InputError(f"time.end = {t.end:g} s in steps of time.dt = {t.dt:g} s is {steps:.3g} steps; at most "
+                         f"{MAX_STEPS:.0e} in one run: check time.dt and time.end")
+    e = estimate(scene, ranks)
+    if max_memory is not None:
+        limit, what = max_memory, "given by --max-memory"
+    else:
+        limit, what = (available if available is not None else available_memory()), "available"
+    if limit is not None and e.memory_gb > limit:
+        raise InputError(f"{e.key} = {e.value}: the run would need about {e.memory_gb:.3g} GB of memory "
+                         f"({e.cells:.3g} cells, {e.matrix_entries:.3g} matrix entries, {e.particles:.3g} particles"
+                         f"{f', {ranks} ranks' if ranks > 1 else ''}), more than the {limit:.3g} GB {what}; use "
+                         f"fewer cells or particles, or set the limit with --max-memory GB")
+    if e.unknowns >= 2**31 - 1:  # PETSc's indices here are 32-bit
+        raise InputError(f"{e.key} = {e.value}: {e.unknowns:.3g} unknowns, more than PETSc's 32-bit indices "
+                         f"address ({2**31 - 1}); use fewer cells")
+    _check_magnitudes(scene)
+    return e
+
+
+def _check_magnitudes(scene: Scene):
+    """Particle volumes, masses and the hydrostatic pressure are ordinary floating-point numbers."""
+    d, fluid = scene.domain, scene.fluid
+    _, _, h = _resolve_grid(d)
+    height = d.upper[1] - d.lower[1]
+    for body_index, body in enumerate(scene.bodies):
+        volume = h * h / body.particles_per_cell
+        if not 1e-300 < volume < math.inf:
+            raise InputError(f"domain: the tank {list(d.lower)}..{list(d.upper)} in cells of {h:g} m gives particles "
+                             f"of volume {volume:g} m^2 (bodies[{body_index}]), beyond floating point: give the tank "
+                             f"in metres")
+        if not 1e-300 < fluid.density * volume < math.inf:
+            raise InputError(f"fluid.density = {fluid.density:g}: particles of {volume:g} m^2 would have a mass of "
+                             f"{fluid.density * volume:g} kg, beyond floating point")
+    if not fluid.density * float(np.hypot(*scene.gravity)) * height < 1e300:
+        raise InputError(f"gravity = {list(scene.gravity)}: the hydrostatic pressure rho g H is beyond floating point")
+
+
 # -- checks of the whole ---------------------------------------------------------------------------
 def _check_geometry(scene: Scene):
     d = scene.domain
-    if (d.cells is None) == (d.cell_size is None):
-        raise InputError("domain: give exactly one of cells = [nx, ny] and cell_size = h")
+    nx, ny, h = _resolve_grid(d)
     try:
-        nx, ny = d.shape
-        h = d.h
+        same = (nx, ny) == tuple(d.shape) and math.isclose(h, d.h)
     except InputError as e:
-        raise InputError(f"domain.{'cells' if d.cells else 'cell_size'}: {e}") from None
+        raise InputError(f"{_grid_key(d)}: {e}") from None
+    if not same:  # the grid's own rule (fempm.grid) and the one above must agree
+        raise InputError(f"{_grid_key(d)}: the grid would be {d.shape} cells of {d.h:g} m, not {nx} x {ny} of {h:g}")
     owner = _check_obstacles(scene, nx, ny, h)
     _check_bodies(scene, owner, nx, h)
 
@@ -361,22 +636,18 @@ def _check_obstacles(scene: Scene, nx: int, ny: int, h: float) -> np.ndarray:
 
 
 def _check_bodies(scene: Scene, owner: np.ndarray, nx: int, h: float):
-    """Bodies inside the domain, resolved by the grid, seeding particles, clear of obstacles."""
+    """Bodies inside the domain, resolved by the grid, seeding particles, clear of obstacles, with a
+    finite initial velocity."""
     d = scene.domain
     lower, upper, tol = np.asarray(d.lower), np.asarray(d.upper), 1e-9 * h
-    earlier: list = []
     for k, body in enumerate(scene.bodies):
+        _inside_domain(body, lower, upper, tol, f"bodies[{k}]")
+    for k, (body, x, cells, inside) in enumerate(_seeding(scene)):
         where = f"bodies[{k}]"
-        _inside_domain(body, lower, upper, tol, where)
-        shape = body.geometry()
-        lo, up = shape.bounds()
+        lo, up = body.geometry().bounds()
         if np.any(up - lo < 2 * h - tol):
             raise InputError(f"{where}: it is {up[0] - lo[0]:g} x {up[1] - lo[1]:g} m, less than two cells across "
                              f"(h = {h:g} m): the grid is too coarse for it; refine domain.cells or cell_size")
-        x, cells = _seed_points(body, d, lo, up)
-        inside = shape.contains(x)
-        for other in earlier:
-            inside &= ~other.contains(x)
         if not inside.any():
             raise InputError(f"{where}: seeds no particle (it lies within earlier bodies or between "
                              f"particle positions); the grid is too coarse for it")
@@ -385,7 +656,43 @@ def _check_bodies(scene: Scene, owner: np.ndarray, nx: int, h: float):
             c = cells[np.flatnonzero(hit)[0]]
             raise InputError(f"{where} overlaps obstacles[{owner[c]}] (cell column {c % nx}, row {c // nx}); "
                              f"move the body or the obstacle")
+        v = body.velocity_at(x[inside])
+        bad = ~np.all(np.isfinite(v), axis=1)
+        if bad.any():
+            p, component = x[inside][np.flatnonzero(bad)[0]], int(np.flatnonzero(~np.isfinite(v[bad][0]))[0])
+            raise InputError(f"{where}.velocity[{component}] = {body.velocity[component]!r} is not finite at "
+                             f"({p[0]:g}, {p[1]:g}) (m/s)")
+
+
+def _seeding(scene: Scene):
+    """For each body: the body, the seeding points tried under its box, their cells, and which of them it
+    seeds (inside it and not inside an earlier body), as :meth:`fempm.Particles.seed` does."""
+    d = scene.domain
+    earlier = []
+    for body in scene.bodies:
+        shape = body.geometry()
+        lo, up = shape.bounds()
+        x, cells = _seed_points(body, d, lo, up)
+        inside = shape.contains(x)
+        for other in earlier:
+            inside &= ~other.contains(x)
         earlier.append(shape)
+        yield body, x, cells, inside
+
+
+def seeded_bodies(scene: Scene) -> list[tuple[int, float, float]]:
+    """For each body: the particles it seeds, the area they stand for and the area asked (m^2).
+
+    Bodies are seeded on the particle lattice (``particles_per_cell`` sub-cell centres per
+    cell), so a body's edges are rounded to it; where bodies overlap, the earlier one has
+    the particles.
+    """
+    h = scene.domain.h
+    out = []
+    for body, _, _, inside in _seeding(scene):
+        n = int(inside.sum())
+        out.append((n, n * h * h / body.particles_per_cell, body.asked_area()))
+    return out
 
 
 def _inside_domain(item: _Shaped, lower, upper, tol, where):
@@ -407,16 +714,43 @@ def _seed_points(body: Body, d: Domain, lo, up) -> tuple[np.ndarray, np.ndarray]
     return sub_cell_centres(origins, d.h, n), np.repeat(cells, n * n)
 
 
-def _check_times(scene: Scene):
+def _whole_steps(value: float, dt: float, name: str, at_least_one: bool = True):
+    """Refuse ``value`` unless it is a whole number of steps of ``dt``, naming the nearest that are."""
+    n = value / dt
+    low, high = max(math.floor(n + 1e-9 * n), 1 if at_least_one else 0), max(math.ceil(n - 1e-9 * n), 1)
+    if at_least_one and n < 1 - 1e-9:
+        raise InputError(f"{name} = {value:g} is shorter than time.dt = {dt:g}: must be >= dt (s)")
+    if abs(n - round(n)) > 1e-9 * max(n, 1):
+        raise InputError(f"{name} = {value:g} is not a whole number of steps of time.dt = {dt:g} ({n:.6g}); take "
+                         f"{low * dt:.10g} or {high * dt:.10g} ({low} or {high} steps)")
+
+
+def _check_times(scene: Scene, fixed_step: bool = True):
+    """The run's end and the output times fall on steps.
+
+    With a fixed ``dt`` every output time must be a whole number of steps (files are due by
+    step count, so a resumed run writes what the uninterrupted one does). A step that
+    adapts (issue 12) would land on the output times instead: ``fixed_step=False`` keeps
+    only the checks that hold for any step (within the run, no shorter than a step).
+    """
     t, o = scene.time, scene.output
     if t.dt > t.end:
         raise InputError(f"time.dt = {t.dt:g} exceeds time.end = {t.end:g}")
-    if abs(t.steps * t.dt - t.end) > 1e-9 * t.end:
-        raise InputError(f"time.end = {t.end:g} is not a whole number of steps of time.dt = {t.dt:g}")
+    if fixed_step:
+        _whole_steps(t.end, t.dt, "time.end")
     for name in ("particles_interval", "grid_interval", "checkpoint_interval"):
         value = getattr(o, name)
-        if value is not None and value < t.dt * (1 - 1e-9):
+        if value is None:
+            continue
+        if fixed_step:
+            _whole_steps(value, t.dt, f"output.{name}")
+        elif value < t.dt * (1 - 1e-9):
             raise InputError(f"output.{name} = {value:g} is shorter than time.dt = {t.dt:g}: must be >= dt (s)")
+    for s in o.snapshots:
+        if s > t.end * (1 + 1e-9):
+            raise InputError(f"output.snapshots: {s:g} s is after the end of the run, time.end = {t.end:g} s")
+        if fixed_step:
+            _whole_steps(s, t.dt, "output.snapshots: the time", at_least_one=False)
 
 
 # -- writing ---------------------------------------------------------------------------------------

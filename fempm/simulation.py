@@ -5,30 +5,38 @@ viscous, volume-correction and PSPG terms only when switched on (the forms leave
 a term whose constant is zero), output series only at the intervals asked for, and
 checkpoints only with ``output.checkpoint_interval`` (or when a run is interrupted). The solve covers the dofs the
 fluid touches (``ImplicitSolver.project``).
+
+An output folder holding an earlier run's files is refused unless the run starts afresh
+(``overwrite``, which removes those files and nothing else) or continues it (:func:`resume`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+import signal
 import sys
+import threading
 from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
 
-from fempm import linear, recording
+from fempm import linear, output, recording
 from fempm.bases import BASES
 from fempm.errors import InputError
+from fempm.formsfile import reporting_errors
 from fempm.grid import Grid
 from fempm.implicit import ImplicitSolver
 from fempm.options import Controls, Physics, Scheme
 from fempm.particles import Particles, sub_cell_centres
 from fempm.recording import Recorder, RecorderOptions
-from fempm.restart import CHECKPOINT, Checkpoints, StopSignals, read_checkpoint, restore
+from fempm.restart import (CHECKPOINT, Checkpoints, StopSignals, check_against, check_time, read_checkpoint,
+                           restore)
 from fempm.scene import Scene, scene_from_text, to_toml
 
-__all__ = ["build_material", "build_solver", "recorder_for", "resume", "run_scene"]
+__all__ = ["build_material", "build_solver", "check_folder", "pressure_limit", "recorder_for", "resume", "run_scene"]
 
 FIELDS = {"u": 2, "p": 1}  # the unknowns of the implicit step, for the PETSc option check
 
@@ -47,7 +55,33 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     physics = Physics(viscosity=fluid.viscosity, gravity=scene.gravity, walls=asdict(scene.walls))
     scheme = Scheme(dt=scene.time.dt, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,
                     pspg=sv.pspg, pic_blend=sv.pic_blend, forms=sv.forms)
-    return ImplicitSolver(basis, particles, physics, scheme, Controls(petsc_options=petsc))
+    controls = Controls(petsc_options=petsc, pressure_limit=pressure_limit(scene, particles))
+    # The forms are compiled here: their mistakes name the file, and a stop request waits until the
+    # compiler is done (stopped half-way, FFCx leaves its cache waiting for the compile).
+    main = threading.current_thread() is threading.main_thread()  # where signal handlers can be set
+    with reporting_errors(sv.forms), (StopSignals() if main else contextlib.nullcontext()) as stop:
+        solver = ImplicitSolver(basis, particles, physics, scheme, controls)
+    if stop is not None and stop.received:
+        signal.raise_signal(stop.received)  # now as the handler outside would have had it
+    return solver
+
+
+def pressure_limit(scene: Scene, particles: Particles) -> float:
+    """The pressure beyond which a step is taken as diverged (``Controls.pressure_limit``).
+
+    ``solver.pressure_limit`` if the scene sets it, else ``20 rho (|g| H + U^2)`` with the
+    scene's density and gravity, H the tank's height and U the fastest initial speed (at
+    least 1 % of a cell per step): twenty times the larger of the hydrostatic pressure and
+    the dynamic pressure of the initial motion.
+    """
+    if scene.solver.pressure_limit is not None:
+        return scene.solver.pressure_limit
+    comm = particles.grid.comm
+    speed = comm.allreduce(float(np.linalg.norm(particles["velocity"], axis=1).max(initial=0.0)), op=MPI.MAX)
+    d = scene.domain
+    height, gravity = d.upper[1] - d.lower[1], float(np.hypot(*scene.gravity))
+    scale = max(gravity * height + speed**2, (0.01 * d.h / scene.time.dt) ** 2)
+    return 20 * scene.fluid.density * scale
 
 
 def build_material(scene: Scene, comm=MPI.COMM_WORLD) -> tuple:
@@ -60,7 +94,7 @@ def build_material(scene: Scene, comm=MPI.COMM_WORLD) -> tuple:
     particles = Particles(grid)
     for body in scene.bodies:
         particles.seed(body.geometry(), per_cell=math.isqrt(body.particles_per_cell), density=fluid.density,
-                       velocity=body.velocity)
+                       velocity=body.initial_velocity())
     return BASES[scene.solver.basis](grid), particles
 
 
@@ -82,35 +116,80 @@ def run_scene(scene: Scene, comm=MPI.COMM_WORLD, overwrite: bool = False, progre
     """Run a scene from its start; returns the summary (also in ``summary.json``).
 
     Args:
-        overwrite: start even if the output folder holds the checkpoint of an earlier run.
+        overwrite: start afresh in a folder holding an earlier run's files: they
+            (:data:`fempm.output.OUTPUT_NAMES`) are removed once the scene is built; other files stay.
         progress: print a progress line (default: the scene's ``output.progress``).
 
     Raises:
-        InputError: the folder holds an earlier run's checkpoint and ``overwrite`` is False,
+        InputError: the folder holds an earlier run's files and ``overwrite`` is False,
             or the scene cannot be built.
     """
     folder = Path(scene.output.folder)
-    if not overwrite and comm.bcast((folder / CHECKPOINT).exists(), root=0):
-        raise InputError(f"output.folder = {str(folder)!r} holds the checkpoint of an earlier run: continue it "
-                         f"with `fempm run --resume {folder}`, or start afresh with --overwrite")
-    return _run(scene, build_solver(scene, comm), None, progress)
+    earlier = check_folder(folder, comm, overwrite)
+    solver = build_solver(scene, comm)
+    if earlier:
+        output.remove_earlier_outputs(folder, comm)
+    return _run(scene, solver, None, progress)
+
+
+def check_folder(folder: str | Path, comm=MPI.COMM_WORLD, overwrite: bool = False, key: str = "output.folder") -> list:
+    """The earlier run's files in ``folder`` (:func:`fempm.output.earlier_outputs`), which a new run may
+    replace only with ``overwrite``.
+
+    Raises:
+        InputError: the folder holds an earlier run's files and ``overwrite`` is False.
+    """
+    earlier = comm.bcast(output.earlier_outputs(folder) if comm.rank == 0 else None, root=0)
+    if earlier and not overwrite:
+        if CHECKPOINT in earlier:
+            raise InputError(f"{key} = {str(folder)!r} holds the checkpoint of an earlier run: continue it "
+                             f"with `fempm run --resume {folder}`, or start afresh with --overwrite")
+        shown = ", ".join(earlier[:3]) + (", ..." if len(earlier) > 3 else "")
+        raise InputError(f"{key} = {str(folder)!r} holds the outputs of an earlier run ({shown}; no checkpoint "
+                         f"to continue from): start afresh with --overwrite (removes them), or choose another folder")
+    return earlier
 
 
 def resume(folder: str | Path, comm=MPI.COMM_WORLD, end_time: float | None = None,
-           progress: bool | None = None) -> dict:
+           progress: bool | None = None, forms: str | Path | None = None, max_memory: float | None = None,
+           available: float | None = None) -> dict:
     """Continue the run whose checkpoint is in ``folder``, writing on into ``folder``.
 
     Args:
         end_time: a new end time (default: the scene's), e.g. to extend a finished run.
+        forms: the forms file of the user's own that the run used (a checkpoint names it, but
+            a forms file is code: it is loaded only when given again here).
+        max_memory, available: see :func:`fempm.scene.load_scene`.
     """
     checkpoint = read_checkpoint(folder, comm)
-    scene = scene_from_text(checkpoint.scene, Path(folder) / CHECKPOINT, folder=folder, end_time=end_time)
+    source = Path(folder) / CHECKPOINT
+    if forms is None:
+        used = _forms_of(checkpoint.scene)
+        if used is not None and ("/" in used or used.endswith(".py")):
+            raise InputError(f"--resume {str(folder)!r}: the run used the forms file {used!r}, which is Python code: "
+                             f"to run it again give --forms {used}")
+    scene = scene_from_text(checkpoint.scene, source, folder=folder, end_time=end_time, forms=forms,
+                            max_memory=max_memory, ranks=comm.size, available=available)
     if checkpoint.ranks != comm.size and comm.rank == 0:
         print(f"fempm: note: resuming on {comm.size} rank(s) a run checkpointed on {checkpoint.ranks}: it goes on "
               f"correctly, but bit-identical continuation holds only on the same number of ranks", file=sys.stderr)
+    check_time(checkpoint, scene.time.dt, folder)
     if scene.time.end < checkpoint.time - 0.5 * scene.time.dt:
         raise InputError(f"--end-time {scene.time.end:g} is before the checkpoint's time {checkpoint.time:g} s")
-    return _run(scene, build_solver(scene, comm), checkpoint, progress)
+    solver = build_solver(scene, comm)
+    check_against(checkpoint, solver, folder)
+    return _run(scene, solver, checkpoint, progress)
+
+
+def _forms_of(scene_text: str) -> str | None:
+    """``solver.forms`` of a scene's TOML (None: absent or unreadable; the scene check says why)."""
+    import tomllib
+
+    try:
+        forms = tomllib.loads(scene_text).get("solver", {}).get("forms")
+    except (tomllib.TOMLDecodeError, AttributeError):
+        return None
+    return forms if isinstance(forms, str) else None
 
 
 def recorder_for(scene: Scene, solver, extra: dict | None = None) -> Recorder:

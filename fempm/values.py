@@ -7,11 +7,15 @@ A scene key is declared with :func:`key` (its check, default and unit); a check 
 from __future__ import annotations
 
 import math
+import os
+import re
 from dataclasses import field
 
-__all__ = ["BadValue", "REQUIRED", "boolean", "cell_count_pair", "cell_list", "choice", "fraction", "key",
-           "non_negative", "petsc_table", "point", "points", "positive", "square_count",
-           "text", "times"]
+from fempm.expressions import ALLOWED, BadExpression, Expression
+
+__all__ = ["BadValue", "REQUIRED", "boolean", "cell_count_pair", "cell_list", "choice", "folder_name", "forms_name",
+           "fraction", "in_range", "key", "non_negative", "petsc_table", "point", "points", "positive", "range_pair",
+           "square_count", "text", "times", "velocity"]
 
 REQUIRED = object()
 
@@ -48,6 +52,71 @@ def fraction(value) -> float:
     if not 0 <= x <= 1:
         raise BadValue(f"must be a number in [0, 1], got {value!r}")
     return x
+
+
+def in_range(low: float, high: float, low_open: bool = True, high_open: bool = False):
+    """A finite number between ``low`` and ``high`` (each end open or closed)."""
+    brackets = f"{'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+
+    def check(value) -> float:
+        x = _number(value)
+        above = x > low if low_open else x >= low
+        below = x < high if high_open else x <= high
+        if not (math.isfinite(x) and above and below):
+            raise BadValue(f"must be a number in {brackets}, got {value!r}")
+        return x
+    check.__doc__ = f"A number in {brackets}."
+    return check
+
+
+def range_pair(value) -> tuple[float, float]:
+    """A pair of finite numbers ``[low, high]`` with ``low < high``."""
+    low, high = point(value)
+    if not low < high:
+        raise BadValue(f"must be [low, high] with low < high, got {value!r}")
+    return low, high
+
+
+def velocity(value) -> tuple[float | str, float | str]:
+    """A pair ``[vx, vy]``, each a number or an expression in x and y (m/s), e.g. ``["-100*y", "100*x"]``."""
+    if not isinstance(value, list) or len(value) != 2:
+        raise BadValue(f"must be a pair [vx, vy] of numbers or expressions in x and y, got {value!r}")
+    out = []
+    for k, v in enumerate(value):
+        if isinstance(v, str):
+            try:
+                Expression(v)
+            except BadExpression as e:
+                raise BadValue(f"component {k} {e}") from None
+            out.append(v)
+        else:
+            x = _number(v)
+            if not math.isfinite(x):
+                raise BadValue(f"must be finite numbers or expressions ({ALLOWED}), got {value!r}")
+            out.append(x)
+    return tuple(out)
+
+
+def folder_name(value) -> str:
+    """A folder name: a non-empty string without NUL, each part at most 255 bytes."""
+    name = text(value)
+    if "\0" in name:
+        raise BadValue(f"must not contain a NUL character, got {value!r}")
+    longest = max((len(os.fsencode(part)) for part in re.split(r"[/\\]", name)), default=0)
+    if longest > 255 or len(os.fsencode(name)) > 4095:
+        raise BadValue(f"a name of {len(name)} characters is too long for the file system (a part of {longest} "
+                       f"bytes; at most 255 per part and 4095 in all)")
+    return name
+
+
+def forms_name(value) -> str:
+    """The bare name of a shipped forms file (``incompressible``): a scene names no file of its own."""
+    name = text(value)
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise BadValue(f"must be the bare name of a shipped forms file (e.g. 'incompressible'), got {value!r}: "
+                       f"a forms file is Python code that runs, so a scene cannot name one by path; give your "
+                       f"own file on the command line with --forms PATH")
+    return name
 
 
 def boolean(value) -> bool:

@@ -38,20 +38,15 @@ compiled once per run and these constants do not change during a run (see
 :func:`switched_on`).
 """
 
-import numpy as np
 import ufl
 
 from fempm import newmark
+from fempm.formsfile import switched_on  # a constant, or an expression of constants, non-zero now
 
 
 def eps(w):
     """Symmetric gradient ``eps(w) = (grad w + grad w^T) / 2``."""
     return ufl.sym(ufl.grad(w))
-
-
-def switched_on(constant) -> bool:
-    """Whether a constant is non-zero now, at compilation: a term it multiplies is built only if so."""
-    return bool(np.any(constant.value != 0))
 
 
 def pspg_tau(speed, dt, h, nu):

@@ -7,6 +7,7 @@ exit status 2 and the expected message on stderr, before anything runs.
 
 import math
 import re
+import sys
 import tomllib
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from mpi4py import MPI
 
 import fempm
 from fempm import cli
-from fempm.scene import load_scene, parse_scene, to_toml
+from fempm.scene import load_scene, parse_scene, scene_from_text, to_toml
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
 DAMBREAK = (SCENES / "dambreak.toml").read_text()
@@ -27,6 +28,8 @@ def _edit(old: str, new: str, text: str = DAMBREAK) -> str:
     return text.replace(old, new, 1)
 
 
+COLUMN = ('shape = "rectangle"               # or "polygon" with vertices = [[x, y], ...]\n'
+          'lower = [0.0, 0.0]\nupper = [0.146, 0.292]')
 OBSTACLE_OVER_COLUMN = '\n[[obstacles]]\nshape = "rectangle"\nlower = [0.1, 0.0]\nupper = [0.2, 0.1]\n'
 
 # (case, scene text or None for the shipped one, extra command-line words, expected message)
@@ -42,9 +45,12 @@ BAD_SCENES = [
     ("zero cells", _edit("cells = [40, 40]", "cells = [0, 40]"), [],
      r"domain.cells: must be a pair of whole numbers >= 1 \[nx, ny\], got \[0, 40\]"),
     ("cells not square", _edit("cells = [40, 40]", "cells = [40, 20]"), [],
-     r"domain.cells: grid: cells must be square, but 40 x 20 cells"),
+     r"domain.cells = \[40, 20\]: the cells must be square, but they would be 0.0146 x 0.0292 m; for square cells "
+     r"of 0.0146 m take domain.upper = \[0.584, 0.292\] or cells = \[40, 40\]"),
     ("cell size not dividing the tank", _edit("cells = [40, 40]", "cell_size = 0.05"), [],
-     r"domain.cell_size: grid: the width \(0.584\) is not a whole number of cells of size h = 0.05"),
+     r"domain.cell_size = 0.05: the width 0.584 m is not a whole number of cells \(11.68\); the cells are square "
+     r"and the tank's faces are the walls: take domain.upper\[0\] = 0.55 or 0.6 \(11 or 12 cells\), or a cell "
+     r"size dividing 0.584"),
     ("both cells and cell size", _edit("cells = [40, 40]", "cells = [40, 40]\ncell_size = 0.0146"), [],
      r"domain: give exactly one of cells = \[nx, ny\] and cell_size = h"),
     ("zero time step", _edit("dt = 1.0e-3", "dt = 0.0"), [], r"time.dt: must be a number > 0, got 0.0 \(s\)"),
@@ -79,8 +85,12 @@ BAD_SCENES = [
     ("boolean as a string", _edit("pspg = true", 'pspg = "yes"'), [], r"solver.pspg: must be true or false, got 'yes'"),
     ("output interval shorter than dt", _edit("particles_interval = 0.05", "particles_interval = 0.0001"), [],
      r"output.particles_interval = 0.0001 is shorter than time.dt = 0.001: must be >= dt"),
-    ("missing forms file", _edit('pic_blend = 0.1', 'pic_blend = 0.1\nforms = "nowhere.py"'), [],
-     r"solver.forms = '.*nowhere.py': no such forms file"),
+    ("forms by path", _edit('pic_blend = 0.1', 'pic_blend = 0.1\nforms = "nowhere.py"'), [],
+     r"solver.forms: must be the bare name of a shipped forms file \(e.g. 'incompressible'\), got 'nowhere.py': "
+     r"a forms file is Python code that runs, so a scene cannot name one by path; give your own file on the "
+     r"command line with --forms PATH"),
+    ("forms not shipped", _edit('pic_blend = 0.1', 'pic_blend = 0.1\nforms = "nowhere"'), [],
+     r"solver.forms = 'nowhere': no shipped forms of that name; shipped: incompressible, weakly_compressible"),
     ("no fluid", re.sub(r"\[\[bodies\]\].*?particles_per_cell = 4[^\n]*\n", "", DAMBREAK, flags=re.S), [],
      r"the scene has no fluid: add at least one \[\[bodies\]\] table"),
     ("obstacle finer than the grid", DAMBREAK + '\n[[obstacles]]\nshape = "rectangle"\nlower = [0.4, 0.0]\n'
@@ -95,6 +105,82 @@ BAD_SCENES = [
     ("negative end time on the command line", None, ["--end-time", "-1"],
      r"argument --end-time: must be a number of seconds > 0, got '-1'"),
     ("unknown flag", None, ["--bogus"], r"unrecognized arguments: --bogus"),
+    # issue 13: no side effects, sizes before allocation, every accepted value used or refused
+    ("forms escaping forms/", _edit('pic_blend = 0.1', 'pic_blend = 0.1\nforms = "../../tmp/evil"'), [],
+     r"solver.forms: must be the bare name of a shipped forms file .*got '../../tmp/evil'"),
+    ("forms not a .py file", None, ["--forms", "x.txt"], r"--forms = 'x.txt': not a .py file"),
+    ("PETSc viewer to a file", _edit("pic_blend = 0.1", 'pic_blend = 0.1\npetsc = { ksp_view_mat = "binary:A.dat" }'),
+     [], r"solver.petsc.ksp_view_mat = 'binary:A.dat': it writes a file \(a binary viewer\); PETSc options in a "
+         r"scene may only print to the terminal"),
+    ("PETSc monitor to a file", _edit("pic_blend = 0.1", 'pic_blend = 0.1\npetsc = { ksp_monitor = "ascii:log.txt" }'),
+     [], r"solver.petsc.ksp_monitor = 'ascii:log.txt': it writes the file 'log.txt'"),
+    ("PETSc drawing", _edit("pic_blend = 0.1", 'pic_blend = 0.1\npetsc = { ksp_monitor = "draw" }'),
+     [], r"solver.petsc.ksp_monitor = 'draw': it draws in a window"),
+    ("grid too large for the memory", _edit("cells = [40, 40]", "cells = [20000, 20000]"), [],
+     r"domain.cells = \[20000, 20000\]: the run would need about 2.\d+e\+03 GB of memory \(4e\+08 cells, .*\), more "
+     r"than the .* GB available; use fewer cells or particles, or set the limit with --max-memory GB"),
+    ("particles too many for the memory", _edit("particles_per_cell = 4 ", "particles_per_cell = 250000 "), [],
+     r"bodies\[0\].particles_per_cell = 250000: the run would need about 107 GB of memory"),
+    ("over the memory limit given", None, ["--max-memory", "0.1"],
+     r"domain.cells = \[40, 40\]: the run would need about 0.261 GB of memory .*, more than the 0.1 GB given by "
+     r"--max-memory"),
+    ("cells beyond 32-bit indices", _edit("cells = [40, 40]", "cell_size = 1e-6"), ["--max-memory", "1e9"],
+     r"domain.cell_size = 1e-06: 1.02e\+12 unknowns, more than PETSc's 32-bit indices address"),
+    ("tank beyond floating point", _edit("upper = [0.584, 0.584]", "upper = [1e300, 1e300]"), [],
+     r"domain: the tank \[0.0, 0.0\]..\[1e\+300, 1e\+300\] in cells of 2.5e\+298 m gives particles of volume inf"),
+    ("absurd step count", _edit("dt = 1.0e-3 ", "dt = 1.0e-300 "), [],
+     r"time.end = 1 s in steps of time.dt = 1e-300 s is 1e\+300 steps; at most 1e\+08 in one run"),
+    ("absurd end", _edit("end = 1.0 ", "end = 1.0e12 "), [],
+     r"time.end = 1e\+12 s in steps of time.dt = 0.001 s is 1e\+15 steps"),
+    ("mass below floating point", _edit("density = 1000.0 ", "density = 1e-320 "), [],
+     r"fluid.density = 9.9\d*e-321: particles of 5.329e-05 m\^2 would have a mass of 0 kg, beyond floating point"),
+    ("pressure scale reversed", _edit("pressure_scale = [0.0, 2864.52]", "pressure_scale = [2864.52, 0.0]"), [],
+     r"output.pressure_scale: must be \[low, high\] with low < high, got \[2864.52, 0.0\] \(Pa\)"),
+    ("pressure scale of zero width", _edit("pressure_scale = [0.0, 2864.52]", "pressure_scale = [5.0, 5.0]"), [],
+     r"output.pressure_scale: must be \[low, high\] with low < high, got \[5.0, 5.0\]"),
+    ("snapshot after the end", _edit("snapshots = [0.2, 0.6]", "snapshots = [0.2, 1.5]"), [],
+     r"output.snapshots: 1.5 s is after the end of the run, time.end = 1 s"),
+    ("snapshot between steps", _edit("snapshots = [0.2, 0.6]", "snapshots = [0.2005]"), [],
+     r"output.snapshots: the time = 0.2005 is not a whole number of steps of time.dt = 0.001 \(200.5\); take 0.2 or "
+     r"0.201 \(200 or 201 steps\)"),
+    ("interval between whole steps", _edit("particles_interval = 0.05", "particles_interval = 0.0015"), [],
+     r"output.particles_interval = 0.0015 is not a whole number of steps of time.dt = 0.001 \(1.5\); take 0.001 or "
+     r"0.002 \(1 or 2 steps\)"),
+    ("checkpoint interval between whole steps", _edit("checkpoint_interval = 0.1", "checkpoint_interval = 0.1004"), [],
+     r"output.checkpoint_interval = 0.1004 is not a whole number of steps .*; take 0.1 or 0.101"),
+    ("Newmark beta out of range", _edit("pic_blend = 0.1", "pic_blend = 0.1\nnewmark_beta = 0.7"), [],
+     r"solver.newmark_beta: must be a number in \(0, 0.5\], got 0.7"),
+    ("Newmark gamma out of range", _edit("pic_blend = 0.1", "pic_blend = 0.1\nnewmark_gamma = 0"), [],
+     r"solver.newmark_gamma: must be a number in \(0, 1\], got 0"),
+    ("pressure limit not positive", _edit("pic_blend = 0.1", "pic_blend = 0.1\npressure_limit = -1.0"), [],
+     r"solver.pressure_limit: must be a number > 0, got -1.0 \(Pa\)"),
+    ("symmetric bow-tie",
+     _edit(COLUMN, 'shape = "polygon"\nvertices = [[0.0, 0.0], [0.2, 0.2], [0.2, 0.0], [0.0, 0.2]]'), [],
+     r"bodies\[0\]: polygon: edges 0 \(\[0.0, 0.0\]..\[0.2, 0.2\]\) and 2 .* cross or touch: the polygon must be simple"),
+    ("asymmetric self-intersecting polygon",
+     _edit(COLUMN, 'shape = "polygon"\nvertices = [[0.0, 0.0], [0.3, 0.2], [0.3, 0.0], [0.0, 0.1]]'), [],
+     r"bodies\[0\]: polygon: edges 0 \(\[0.0, 0.0\]..\[0.3, 0.2\]\) and 2 .* cross or touch"),
+    ("polygon folding back",
+     _edit(COLUMN, 'shape = "polygon"\nvertices = [[0.0, 0.0], [0.3, 0.0], [0.1, 0.0], [0.1, 0.2]]'), [],
+     r"bodies\[0\]: polygon: edges 0 .* and 1 .* cross or touch"),
+    ("velocity expression with a call",
+     _edit("particles_per_cell = 4 ", 'particles_per_cell = 4\nvelocity = ["__import__(\'os\').getcwd()", 0]'),
+     [], r"bodies\[0\].velocity: component 0 .*: .__import__\(.os.\).getcwd. \(not one of the functions\) is not "
+         r"allowed; allowed: numbers, x, y, pi, \+ - \* / \*\*, parentheses and sin cos exp sqrt tanh abs"),
+    ("velocity expression with an unknown name", _edit("particles_per_cell = 4 ", 'particles_per_cell = 4\n'
+                                                                                  'velocity = ["2*t", 0]'),
+     [], r"bodies\[0\].velocity: component 0 '2\*t': the name 't' is not allowed"),
+    ("velocity expression not finite", _edit("particles_per_cell = 4 ", 'particles_per_cell = 4\n'
+                                                                        'velocity = [0, "sqrt(x - 0.01)"]'),
+     [], r"bodies\[0\].velocity\[1\] = 'sqrt\(x - 0.01\)' is not finite at \(0.00365, 0.00365\) \(m/s\)"),
+    ("tank not a whole number of cells", _edit("upper = [0.584, 0.584]", "upper = [0.59, 0.584]")
+     .replace("cells = [40, 40]", "cell_size = 0.0146"), [],
+     r"domain.cell_size = 0.0146: the width 0.59 m is not a whole number of cells \(40.411\); the cells are square and "
+     r"the tank's faces are the walls: take domain.upper\[0\] = 0.584 or 0.5986 \(40 or 41 cells\)"),
+    ("output folder with a NUL", _edit('folder = "results/dambreak"', 'folder = "o\\u0000x"'), [],
+     r"output.folder: must not contain a NUL character, got 'o\\x00x'"),
+    ("output folder name too long", _edit('folder = "results/dambreak"', f'folder = "{"a" * 300}"'), [],
+     r"output.folder: a name of 300 characters is too long for the file system \(a part of 300 bytes; at most 255"),
 ]
 
 
@@ -187,3 +273,91 @@ def test_readme_example_is_a_valid_complete_scene(tmp_path):
     assert {"name", "gravity", "obstacles"} <= set(data)
     solver = build_solver(scene, MPI.COMM_WORLD)
     assert solver.particles.global_count() == 2835 and int(solver.grid.blocked.sum()) == 48
+
+
+def test_check_runs_no_forms_named_by_a_scene_and_writes_nothing(tmp_path, capsys):
+    """A scene naming a forms file by path is refused before the file runs; a PETSc viewer to a
+    file is refused before PETSc sees it: ``fempm check`` leaves the disk as it was."""
+    evil = tmp_path / "evil.py"
+    evil.write_text(f"open({str(tmp_path / 'ran')!r}, 'w').write('x')\ndef residual(s):\n    return None\n")
+    scenes = {"forms.toml": _edit("pic_blend = 0.1", f'pic_blend = 0.1\nforms = "{evil}"'),
+              "viewer.toml": _edit("pic_blend = 0.1", f'pic_blend = 0.1\npetsc = {{ ksp_view_mat = '
+                                                      f'"binary:{tmp_path / "A.dat"}", ksp_monitor = "" }}')}
+    for name, text in scenes.items():
+        (tmp_path / name).write_text(text)
+        before = sorted(p.name for p in tmp_path.iterdir())
+        assert cli.main(["check", str(tmp_path / name)]) == 2
+        assert sorted(p.name for p in tmp_path.iterdir()) == before, name
+    err = capsys.readouterr().err
+    assert "ksp_view_mat" in err and "solver.forms" in err
+
+
+def test_an_initial_velocity_field_is_seeded_as_given(comm):
+    """``velocity = ["-2*(y-0.146)", "2*(x-0.073)"]``: a rigid rotation about the column's centre."""
+    from fempm.simulation import build_material
+
+    text = _edit("particles_per_cell = 4 ", 'particles_per_cell = 4\nvelocity = ["-2*(y-0.146)", "2*(x-0.073)"]')
+    scene = scene_from_text(text, "rotating.toml")
+    _, particles = build_material(scene, comm)
+    x, v = particles.x, particles["velocity"]
+    assert np.array_equal(v[:, 0], -2 * (x[:, 1] - 0.146)) and np.array_equal(v[:, 1], 2 * (x[:, 0] - 0.073))
+    assert particles.global_count() == 800
+
+
+def test_check_prints_each_bodys_seeded_area_and_the_size_of_the_run(tmp_path, capsys):
+    triangle = _edit(COLUMN, 'shape = "polygon"\nvertices = [[0.0, 0.0], [0.15, 0.0], [0.0, 0.3]]')
+    (tmp_path / "triangle.toml").write_text(triangle)
+    assert cli.main(["check", str(tmp_path / "triangle.toml")]) == 0
+    out = capsys.readouterr().out
+    if MPI.COMM_WORLD.rank == 0:
+        assert ("# bodies[0]: 420 particles standing for 0.0223818 m^2 of the 0.0225 m^2 asked (-0.53 %: bodies are "
+                "rounded to the particle lattice)") in out
+        size = re.search(r"# size: about ([\d.]+) GB of memory at the start .*: 1.6e\+03 cells, 5.29e\+03 unknowns, "
+                         r"3.97e\+05 matrix entries, 422 particles, 1e\+03 steps", out)  # 420 seeded
+        assert size and 0.25 < float(size.group(1)) < 0.27  # printed 0.26
+
+
+def test_the_pressure_limit_follows_the_scene(comm):
+    """20 rho (|g| H + U^2), or solver.pressure_limit: not the default of water under Earth's gravity."""
+    from fempm.simulation import build_material, pressure_limit
+
+    def limit(text):
+        scene = scene_from_text(text, "scene.toml")
+        return pressure_limit(scene, build_material(scene, comm)[1])
+
+    assert limit(DAMBREAK) == pytest.approx(20 * 1000.0 * 9.81 * 0.584, rel=1e-12)  # as ImplicitOptions' default
+    drifting = _edit("gravity = [0.0, -9.81]", "gravity = [0.0, 0.0]").replace(
+        "particles_per_cell = 4 ", "particles_per_cell = 4\nvelocity = [100.0, 0.0]\n", 1)
+    assert limit(drifting) == pytest.approx(20 * 1000.0 * 100.0**2, rel=1e-12)
+    light = _edit("density = 1000.0 ", "density = 1.2 ")
+    assert limit(light) == pytest.approx(20 * 1.2 * 9.81 * 0.584, rel=1e-12)
+    assert limit(_edit("pic_blend = 0.1", "pic_blend = 0.1\npressure_limit = 5.0e5")) == 5.0e5
+
+
+def test_a_shorter_end_time_leaves_out_later_snapshots_with_a_note():
+    scene = load_scene(SCENES / "dambreak.toml", end_time=0.3)
+    assert scene.output.snapshots == (0.2,)
+    assert scene.notes == ("the end time 0.3 s comes before output.snapshots 0.6 s: not taken",)
+    assert parse_scene(tomllib.loads(to_toml(scene)), "resolved.toml") == scene  # the resolved scene is valid
+
+
+def test_the_nearest_tank_sizes_offered_fit():
+    """The sizes a refusal offers are accepted (the walls stay on the grid's faces)."""
+    text = _edit("cells = [40, 40]", "cell_size = 0.0146").replace("upper = [0.584, 0.584]", "upper = [0.59, 0.584]")
+    with pytest.raises(fempm.InputError, match=r"take domain.upper\[0\] = 0.584 or 0.5986") as refusal:
+        scene_from_text(text, "tank.toml")
+    for width in re.search(r"= ([\d.]+) or ([\d.]+) ", str(refusal.value)).groups():
+        scene = scene_from_text(text.replace("upper = [0.59, 0.584]", f"upper = [{width}, 0.584]"), "tank.toml")
+        assert scene.domain.shape[0] * scene.domain.h == pytest.approx(float(width), rel=1e-12)
+
+
+def test_the_demo_names_its_flags_not_the_shipped_scene():
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "demos"))
+    import dambreak
+
+    args, _ = dambreak.parse_arguments(["--dt", "0.0003", "--no-files", "--quiet"])
+    with pytest.raises(fempm.InputError) as refusal:
+        dambreak.scene_of(args)
+    assert str(refusal.value) == ("command line: --end-time = 1 is not a whole number of steps of --dt = 0.0003 "
+                                  "(3333.33); take 0.9999 or 1.0002 (3333 or 3334 steps)")
+    assert args.out == Path("results/dambreak-demo")  # its own folder, not the shipped scene's
