@@ -157,6 +157,17 @@ class ImplicitSolver(Stepper):
         """The grid's cell size."""
         return self.grid.h
 
+    def clock_state(self) -> dict:
+        """The clock's, and the energy watch's start and lowest energy."""
+        watch = self.check_energy
+        return {**super().clock_state(), "energy": [watch.start, watch.lowest] if watch else None}
+
+    def restore_clock(self, state: dict):
+        """Continue from a :meth:`clock_state`."""
+        super().restore_clock(state)
+        if self.check_energy and state.get("energy"):
+            self.check_energy.start, self.check_energy.lowest = state["energy"]
+
     def save(self):
         """The particles, the walls' stop count and the energy watch's lowest energy."""
         return (self.particles.state(), self.walls.stops, self.check_energy.lowest if self.check_energy else None)

@@ -4,9 +4,9 @@ Works with any solver that is a :class:`~fempm.stepper.Stepper` (``step()``, ``t
 ``steps``, ``dt``, ``timings``) and has ``particles``, ``grid``, ``basis``, ``velocity`` and
 ``pressure`` (grid functions) and ``max_divergence``.
 
-Files are due by step count (an interval of ``k`` steps writes at steps 0, k, 2k, ...),
-so a run resumed from a checkpoint writes exactly what the uninterrupted run writes; the
-wall times in the summary add up over the parts of a resumed run. A file that cannot be
+Files are due at times (every interval from 0, or given times: :class:`Schedule`), and the
+loop makes each step land on the next of them, so a run resumed from a checkpoint writes
+exactly what the uninterrupted run writes, whatever its steps; the wall times in the summary add up over the parts of a resumed run. A file that cannot be
 written (:class:`fempm.output.OutputError`) stops the run like a divergence, with the
 file named in the cause.
 """
@@ -24,13 +24,37 @@ from fempm import diagnostics, output
 from fempm.errors import SimulationDiverged
 from fempm.output import OutputError
 from fempm.progress import Progress
+from fempm.stepper import TIME_TOLERANCE
 
-__all__ = ["Recorder", "RecorderOptions", "run", "steps_between"]
+__all__ = ["Recorder", "RecorderOptions", "Schedule", "run"]
 
 
-def steps_between(interval: float | None, dt: float) -> int | None:
-    """An interval of simulated time in whole steps (at least one); None stays None (never)."""
-    return None if interval is None else max(round(interval / dt), 1)
+class Schedule:
+    """Times at which something is due: every ``interval`` from 0, and the given ``times``.
+
+    Stateless (a resumed run asks the same questions of the same times). Times within
+    :data:`~fempm.stepper.TIME_TOLERANCE` of one another are the same.
+    """
+
+    def __init__(self, interval: float | None = None, times=()):
+        self.interval, self.times = interval, sorted(times)
+
+    def _tolerance(self, t: float) -> float:
+        return TIME_TOLERANCE * max(abs(t), self.interval or 0.0, 1e-300)
+
+    def due(self, t: float) -> bool:
+        """Whether ``t`` is one of the times."""
+        tol = self._tolerance(t)
+        on_interval = self.interval is not None and abs(t - round(t / self.interval) * self.interval) <= tol
+        return on_interval or any(abs(t - s) <= tol for s in self.times)
+
+    def after(self, t: float) -> float:
+        """The first time after ``t`` (``inf``: none)."""
+        tol = self._tolerance(t)
+        later = [s for s in self.times if s > t + tol]
+        if self.interval is not None:
+            later.append(float((np.floor((t + tol) / self.interval) + 1) * self.interval))
+        return min(later, default=np.inf)
 
 
 @dataclass
@@ -64,15 +88,14 @@ class Recorder:
     def __init__(self, solver, options: RecorderOptions):
         self.solver, self.options = solver, options
         self.folder = output.prepare_folder(options.folder, solver.grid.comm)
-        dt = solver.dt
         self.front: list[tuple[float, float]] = []
         self.cells: list[tuple[float, int, float]] = []  # (t, occupied cells, surface height)
         self.pressure_min, self.pressure_max, self.max_divergence = np.inf, -np.inf, 0.0
-        self.particles_every = steps_between(options.particles_interval, dt)
-        self.grid_every = steps_between(options.grid_interval, dt)
-        self.particle_series = output.ParticleSeries(self.folder) if self.particles_every else None
-        self.grid_series = output.GridSeries(self.folder, solver.basis) if self.grid_every else None
-        self.snapshot_steps = {round(t / dt): t for t in options.snapshot_times}
+        self.particles_due = Schedule(options.particles_interval)
+        self.grid_due = Schedule(options.grid_interval)
+        self.snapshots_due = Schedule(times=options.snapshot_times)
+        self.particle_series = output.ParticleSeries(self.folder) if options.particles_interval else None
+        self.grid_series = output.GridSeries(self.folder, solver.basis) if options.grid_interval else None
         self.wall_before, self.phases_before = 0.0, {}  # of the earlier parts of a resumed run
         self._started = None
 
@@ -96,22 +119,25 @@ class Recorder:
             phases[name] = phases.get(name, 0.0) + comm.allreduce(local.get(name, 0.0), op=MPI.MAX)
         return part, self.wall_before + part, phases
 
+    def next_time(self, t: float) -> float:
+        """The first time after ``t`` at which a file is due (``inf``: none)."""
+        return min(schedule.after(t) for schedule in (self.particles_due, self.grid_due, self.snapshots_due))
+
     def record(self):
-        """Take the measures of the current state; write the files due at this step."""
+        """Take the measures of the current state; write the files due at this time."""
         s, particles = self.solver, self.solver.particles
-        t, n = s.time, s.steps
+        t = s.time
         self.front.append((t, diagnostics.front_position(particles)))
         self.cells.append((t, diagnostics.occupied_cells(particles), diagnostics.surface_height(particles)))
         low, high = diagnostics.pressure_range(particles)
         self.pressure_min, self.pressure_max = min(self.pressure_min, low), max(self.pressure_max, high)
         self.max_divergence = max(self.max_divergence, s.max_divergence)
-        if self.particle_series and n % self.particles_every == 0:
+        if self.particle_series and self.particles_due.due(t):
             self.particle_series.write(particles, t)
-        if self.grid_series and n % self.grid_every == 0:
+        if self.grid_series and self.grid_due.due(t):
             self.grid_series.write(s.velocity, s.pressure, t)
-        if n in self.snapshot_steps:
-            ts = self.snapshot_steps[n]
-            output.snapshot(self.folder / f"snapshot_t{ts:.3f}.png", particles, title=f"t = {ts:.3f} s",
+        if self.snapshots_due.due(t):
+            output.snapshot(self.folder / f"snapshot_t{t:.3f}.png", particles, title=f"t = {t:.3f} s",
                             clim=self.options.pressure_scale)
 
     def write_histories(self):
@@ -190,6 +216,7 @@ class Recorder:
             "mean_depth_final_m": self.cells[-1][1] * h * h / floor,
             "surface_height_final_m": self.cells[-1][2],
             "wall_stops": s.walls.stops,
+            "step_retries": [{"time": t, "step": n, "failed_dt": dt, "cause": c} for t, n, dt, c in s.retries],
             **self.options.extra,
         }
         error = None
@@ -225,16 +252,16 @@ def run(solver, end_time: float, recorder: Recorder, progress: bool = True, chec
     """
     comm = solver.grid.comm
     bar = Progress(end_time, comm, start_time=solver.time) if progress else None
-    n_steps = int(round((end_time - solver.time) / solver.dt))
     status, cause = "completed", None
     wall0 = time.perf_counter()
     recorder.start_clock()
     try:
         if not recorder.front:
             recorder.record()
-        for _ in range(n_steps):
+        while solver.time < end_time - TIME_TOLERANCE * max(end_time, solver.dt):
             start = time.perf_counter()
-            solver.step()
+            due = [end_time, recorder.next_time(solver.time), checkpoints.next_time(solver.time) if checkpoints else np.inf]
+            solver.step(until=min(due))
             recorder.record()
             if checkpoints:
                 checkpoints.after_step(solver, recorder)

@@ -29,7 +29,7 @@ from mpi4py import MPI
 
 from fempm.errors import InputError
 from fempm.output import OUTPUT_NAMES, OutputError, agree, atomic_path, gather_particles
-from fempm.recording import steps_between
+from fempm.recording import Schedule
 
 __all__ = ["CHECKPOINT", "Checkpoint", "Checkpoints", "StopSignals", "check_against", "check_time", "read_checkpoint",
            "restore", "write_checkpoint"]
@@ -49,6 +49,7 @@ class Checkpoint:
     recorder: dict
     lost: tuple[float, int]
     particles: dict[str, np.ndarray]
+    clock: dict
 
 
 def write_checkpoint(folder: Path, solver, recorder, scene_text: str):
@@ -60,7 +61,8 @@ def write_checkpoint(folder: Path, solver, recorder, scene_text: str):
     state = recorder.state()  # collective
     error = None
     if comm.rank == 0:
-        meta = {"time": solver.time, "steps": solver.steps, "ranks": comm.size, "lost": lost, "recorder": state}
+        meta = {"time": solver.time, "steps": solver.steps, "ranks": comm.size, "lost": lost, "recorder": state,
+                "clock": solver.clock_state()}
         arrays = {f"{_PARTICLE}{name}": a for name, a in data.items()}
         try:
             with atomic_path(Path(folder) / CHECKPOINT) as tmp:
@@ -105,7 +107,7 @@ def read_checkpoint(folder: str | Path, comm) -> Checkpoint:
     if comm.rank != 0:
         arrays = {k: np.zeros((0, *shape), dtype=dtype) for k, (dtype, shape) in shapes.items()}
     return Checkpoint(scene, meta["time"], meta["steps"], meta["ranks"], meta["recorder"],
-                      tuple(meta["lost"]), arrays)
+                      tuple(meta["lost"]), arrays, meta.get("clock", {}))
 
 
 def _number(x) -> bool:
@@ -174,6 +176,10 @@ def _check_meta(meta) -> str | None:
         if len(r[name]) != meta["steps"] + 1:
             return (f"meta.recorder.{name} has {len(r[name])} rows, but a run at step {meta['steps']} has "
                     f"{meta['steps'] + 1} (one per step and the start)")
+    clock = meta.get("clock", {})
+    if not isinstance(clock, dict) or not all(isinstance(k, str) and (v is None or _finite(v) or isinstance(v, list))
+                                              for k, v in clock.items()):
+        return f"meta.clock = {clock!r}: must be a table of numbers"
     if "wall_time_s" in r and not (_finite(r["wall_time_s"]) and r["wall_time_s"] >= 0):
         return f"meta.recorder.wall_time_s = {r['wall_time_s']!r}: must be a number >= 0"
     phases = r.get("wall_time_by_phase_s", {})
@@ -250,6 +256,7 @@ def restore(solver, recorder, checkpoint: Checkpoint):
     first = particles.grid.comm.rank == 0
     particles.lost_mass, particles.lost_count = checkpoint.lost if first else (0.0, 0)
     solver.time, solver.steps = checkpoint.time, checkpoint.steps
+    solver.restore_clock(checkpoint.clock)
     recorder.restore(checkpoint.recorder)
 
 
@@ -259,24 +266,27 @@ class Checkpoints:
     Args:
         folder: the output folder.
         scene_text: the scene, stored in each checkpoint.
-        interval: seconds of simulated time between checkpoints (whole steps of ``dt``);
-            None: a checkpoint only when the run is interrupted.
-        dt: the time step.
+        interval: seconds of simulated time between checkpoints; None: a checkpoint only when the
+            run is interrupted.
     """
 
-    def __init__(self, folder: Path, scene_text: str, interval: float | None, dt: float):
+    def __init__(self, folder: Path, scene_text: str, interval: float | None):
         self.folder, self.scene_text = Path(folder), scene_text
-        self.every = steps_between(interval, dt)
+        self.schedule = Schedule(interval) if interval else None
         self.last_step = None
 
+    def next_time(self, t: float) -> float:
+        """The first time after ``t`` a checkpoint is due (``inf``: none)."""
+        return self.schedule.after(t) if self.schedule else np.inf
+
     def after_step(self, solver, recorder):
-        """Write a checkpoint if one is due at this step."""
-        if self.every and solver.steps % self.every == 0:
+        """Write a checkpoint if one is due at this time."""
+        if self.schedule and solver.steps and self.schedule.due(solver.time):
             self.write(solver, recorder)
 
     def finish(self, solver, recorder, status: str):
         """At the end of a run: a last checkpoint, if periodic ones are asked for or the run was interrupted."""
-        if self.every or status == "interrupted":
+        if self.schedule or status == "interrupted":
             self.write(solver, recorder)
 
     def write(self, solver, recorder):

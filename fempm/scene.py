@@ -145,14 +145,15 @@ class Walls:
 
 @dataclass(frozen=True)
 class Time:
-    """The simulated span and the time step."""
+    """The simulated span and the time step: fixed, or with ``courant`` adaptive (``dt`` its bound)."""
 
     end: float = key(positive, unit="s")
     dt: float = key(positive, unit="s")
+    courant: float | None = key(in_range(0, 10), None)
 
     @property
     def steps(self) -> int:
-        """Steps from 0 to ``end``."""
+        """Steps from 0 to ``end`` (with an adaptive step: the fewest)."""
         return round(self.end / self.dt)
 
 
@@ -289,7 +290,7 @@ def parse_scene(data: dict, source: str | Path = "scene", forms: str | Path | No
         scene = _parse(data, source, forms)
         check_size(scene, max_memory, ranks, available)
         _check_geometry(scene)
-        _check_times(scene)
+        _check_times(scene, fixed_step=scene.time.courant is None)
     except InputError as e:
         message = str(e)
         for name, flag in (names or {}).items():
@@ -728,10 +729,9 @@ def _whole_steps(value: float, dt: float, name: str, at_least_one: bool = True):
 def _check_times(scene: Scene, fixed_step: bool = True):
     """The run's end and the output times fall on steps.
 
-    With a fixed ``dt`` every output time must be a whole number of steps (files are due by
-    step count, so a resumed run writes what the uninterrupted one does). A step that
-    adapts (issue 12) would land on the output times instead: ``fixed_step=False`` keeps
-    only the checks that hold for any step (within the run, no shorter than a step).
+    With a fixed ``dt`` every output time must be a whole number of steps. An adaptive step
+    lands on the output times instead: ``fixed_step=False`` keeps only the checks that hold
+    for any step (within the run, no shorter than a step).
     """
     t, o = scene.time, scene.output
     if t.dt > t.end:

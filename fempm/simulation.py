@@ -53,7 +53,7 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     linear.check_options(comm, list(sv.petsc), FIELDS)
     basis, particles = build_material(scene, comm)
     physics = Physics(viscosity=fluid.viscosity, gravity=scene.gravity, walls=asdict(scene.walls))
-    scheme = Scheme(dt=scene.time.dt, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,
+    scheme = Scheme(dt=scene.time.dt, courant=scene.time.courant, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,
                     pspg=sv.pspg, pic_blend=sv.pic_blend, forms=sv.forms)
     controls = Controls(petsc_options=petsc, pressure_limit=pressure_limit(scene, particles))
     # The forms are compiled here: their mistakes name the file, and a stop request waits until the
@@ -173,7 +173,8 @@ def resume(folder: str | Path, comm=MPI.COMM_WORLD, end_time: float | None = Non
     if checkpoint.ranks != comm.size and comm.rank == 0:
         print(f"fempm: note: resuming on {comm.size} rank(s) a run checkpointed on {checkpoint.ranks}: it goes on "
               f"correctly, but bit-identical continuation holds only on the same number of ranks", file=sys.stderr)
-    check_time(checkpoint, scene.time.dt, folder)
+    if scene.time.courant is None:  # a fixed step: the time is the step count times dt
+        check_time(checkpoint, scene.time.dt, folder)
     if scene.time.end < checkpoint.time - 0.5 * scene.time.dt:
         raise InputError(f"--end-time {scene.time.end:g} is before the checkpoint's time {checkpoint.time:g} s")
     solver = build_solver(scene, comm)
@@ -207,7 +208,7 @@ def _run(scene: Scene, solver: ImplicitSolver, checkpoint, progress: bool | None
     recorder = recorder_for(scene, solver, {"resumed_from_step": checkpoint.steps if checkpoint else None})
     if checkpoint:
         restore(solver, recorder, checkpoint)
-    checkpoints = Checkpoints(recorder.folder, to_toml(scene), o.checkpoint_interval, scene.time.dt)
+    checkpoints = Checkpoints(recorder.folder, to_toml(scene), o.checkpoint_interval)
     with StopSignals() as stop:
         return recording.run(solver, scene.time.end, recorder, progress=o.progress if progress is None else progress,
                              checkpoints=checkpoints, stop=stop)

@@ -89,6 +89,7 @@ class Stepper:
         Raises:
             SimulationDiverged: the step failed (after its retries, with a step control).
         """
+        until = None if until is None or until == float("inf") else float(until)
         dt = self._size(until)
         saved = self.save() if self.control else None
         for attempt in range(self.control.retries + 1 if self.control else 1):
@@ -118,6 +119,16 @@ class Stepper:
         if remaining <= dt * (1 + TIME_TOLERANCE):
             return remaining
         return remaining / math.ceil(remaining / dt * (1 - TIME_TOLERANCE))
+
+    def clock_state(self) -> dict:
+        """What a resumed run needs to choose the same steps (JSON-able)."""
+        return {"dt": self.dt, "previous": self._previous, "retries": [list(r) for r in self.retries]}
+
+    def restore_clock(self, state: dict):
+        """Continue from a :meth:`clock_state` (an empty one: as at the start)."""
+        self.dt = state.get("dt", self.dt)
+        self._previous = state.get("previous", self._previous)
+        self.retries = [tuple(r) for r in state.get("retries", [])]
 
     # -- what a scheme provides ----------------------------------------------------------------
     def advance(self, dt: float):

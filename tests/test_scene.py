@@ -58,6 +58,8 @@ BAD_SCENES = [
     ("missing time step", _edit("dt = 1.0e-3", ""), [], r"time.dt is missing: give a finite number > 0 \(s\)"),
     ("end not a whole number of steps", _edit("end = 1.0 ", "end = 1.0005 "), [],
      r"time.end = 1.0005 is not a whole number of steps of time.dt = 0.001"),
+    ("courant number zero", _edit("dt = 1.0e-3", "dt = 1.0e-3\ncourant = 0.0"), [],
+     r"time.courant: must be a number in \(0, 10\], got 0.0"),
     ("body outside the domain", _edit("upper = [0.146, 0.292]", "upper = [0.146, 0.7]"), [],
      r"bodies\[0\]: its extent \[0.0, 0.0\]..\[0.146, 0.7\] is not inside the domain \[0.0, 0.0\]..\[0.584, 0.584\]"),
     ("body overlapping an obstacle", DAMBREAK + OBSTACLE_OVER_COLUMN, [],
@@ -361,3 +363,12 @@ def test_the_demo_names_its_flags_not_the_shipped_scene():
     assert str(refusal.value) == ("command line: --end-time = 1 is not a whole number of steps of --dt = 0.0003 "
                                   "(3333.33); take 0.9999 or 1.0002 (3333 or 3334 steps)")
     assert args.out == Path("results/dambreak-demo")  # its own folder, not the shipped scene's
+
+
+def test_an_adaptive_step_lifts_the_whole_step_rule():
+    """With time.courant the steps land on the output times, so these need not be whole steps of dt."""
+    from fempm.scene import scene_from_text
+
+    text = _edit("dt = 1.0e-3", "dt = 5.0e-3\ncourant = 0.5", _edit("particles_interval = 0.05", "particles_interval = 0.0123"))
+    scene = scene_from_text(text, "dambreak.toml")
+    assert scene.time.courant == 0.5 and scene.output.particles_interval == 0.0123
