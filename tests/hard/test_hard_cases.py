@@ -1,7 +1,7 @@
 """The hard-case stability suite of issue 5: each case runs to its end or stops with a diagnosis.
 
-The cases and their measures are those of ``benchmarks/hard_cases.py`` (:func:`run_case`),
-which also writes ``docs/hard-cases.md``. Each test runs the short version in CI and the
+The cases and their measures are those of :mod:`fempm.cases.hard` (:func:`run_case`);
+``benchmarks/hard_cases.py`` writes them as ``docs/hard-cases.md``. Each test runs the short version in CI and the
 long one with ``--full``, and asserts: the outcome (every case here runs to its end
 time), finite particle fields, the total mass to round-off, a volume measure, and
 bounds that an "eruption" would break: the mechanical energy never above its start
@@ -11,14 +11,10 @@ squeezed out at a wall impact, the energy error of a step ten times the seed's) 
 nothing near an eruption, whose energy and speeds grow without bound.
 """
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
-import hard_cases as hc  # noqa: E402
+from fempm.cases import hard as hc
 
 SHORT_AND_FULL = [False, pytest.param(True, marks=pytest.mark.full)]
 #: the dam break's water spread over the floor: its area over the tank's width
