@@ -13,7 +13,6 @@ each particle's pressure averaged over that half. A section of ``docs/implicit-v
 
 from __future__ import annotations
 
-import argparse
 from math import sqrt
 from pathlib import Path
 
@@ -121,12 +120,7 @@ def plot(path: Path, columns: list[dict]):
     ax = axes[-1]
     for c in columns:
         ax.semilogy(c["history"][:, 0], c["history"][:, 1], label=c["label"])
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel(r"std of $p - \rho g$ depth (Pa)")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=6)
-    fig.tight_layout()
-    schemes.save(fig, path)
+    schemes.save(fig, path, ax, "t (s)", r"std of $p - \rho g$ depth (Pa)", legend=6)
 
 
 def table(columns: list[dict]) -> str:
@@ -157,15 +151,12 @@ def summary_sentences(columns: list[dict]) -> list[str]:
             for c in explicit]
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--full", action="store_true", help="1 s instead of 0.25 s")
-    args = parser.parse_args(argv)
-    schemes.warm_up()
-    columns = measure(schemes.FULL if args.full else schemes.SHORT)
+def report(w: Windows):
+    """Measure and print the table and the closing sentences."""
+    columns = measure(w)
     print(table(columns))
     print("\n".join(summary_sentences(columns)))
 
 
 if __name__ == "__main__":
-    main()
+    schemes.run_alone(__doc__, report)

@@ -9,7 +9,6 @@ A section of ``docs/implicit-vs-explicit.md``::
 
 from __future__ import annotations
 
-import argparse
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 import pages
@@ -35,13 +34,5 @@ def table(scan: list[Run]) -> str:
     return pages.table(["C", "dt (s)", "outcome", "simulated time", "pressure range (kPa)"], map(row, scan))
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--full", action="store_true", help="the long window")
-    args = parser.parse_args(argv)
-    schemes.warm_up()
-    print(table(measure(schemes.FULL if args.full else schemes.SHORT)))
-
-
 if __name__ == "__main__":
-    main()
+    schemes.run_alone(__doc__, lambda w: print(table(measure(w))))

@@ -12,6 +12,7 @@ up first by :func:`warm_up`), measured by ``time.perf_counter``.
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass, field
 from math import sqrt
 from pathlib import Path
@@ -26,7 +27,8 @@ from fempm.particles import Particles
 from fempm.simulation import build_solver
 from fempm.verification import advance
 
-__all__ = ["C0", "FULL", "SHORT", "Run", "Windows", "dambreak_run", "pct", "pyplot", "save", "two_seconds", "warm_up"]
+__all__ = ["C0", "FULL", "SHORT", "Run", "Windows", "dambreak_run", "pct", "pyplot", "run_alone", "save", "two_seconds",
+           "warm_up"]
 
 G, L, H, RHO = dambreak.GRAVITY, dambreak.WIDTH, dambreak.HEIGHT, 1000.0
 C0 = dambreak.AUTO_SOUND_SPEED
@@ -156,7 +158,24 @@ def pyplot():
     return plt
 
 
-def save(fig, path: Path):
+def save(fig, path: Path, ax=None, xlabel: str = "", ylabel: str = "", legend: float = 7):
+    """Label ``ax`` (axes, grid, legend) if given, lay out and write the figure."""
+    if ax is not None:
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=legend)
+    fig.tight_layout()
     with output.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, format="png")
     pyplot().close(fig)
+
+
+def run_alone(description: str, report):
+    """A measurement run by itself: ``--full`` chooses the windows, every solver kind is warmed up,
+    then ``report(windows)`` measures and prints."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--full", action="store_true", help="the long windows (tens of minutes)")
+    args = parser.parse_args()
+    warm_up()
+    report(FULL if args.full else SHORT)

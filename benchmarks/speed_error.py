@@ -13,7 +13,6 @@ extrapolated linearly to 2 s, and the tables say so. A section of ``docs/implici
 
 from __future__ import annotations
 
-import argparse
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -97,7 +96,6 @@ def plot_speed_error(path: Path, runs: list[Run]):
     ax.set_xlabel("wall time per simulated second (s), one core")
     ax.set_ylabel("front RMS error vs Koshizuka-Oka, T <= 3 (%)")
     ax.grid(alpha=0.3)
-    fig.tight_layout()
     schemes.save(fig, path)
 
 
@@ -110,12 +108,7 @@ def plot_fronts(path: Path, runs: list[Run]):
     ax.plot(EXPERIMENT[:, 0], EXPERIMENT[:, 1], "o", color="black", label="Koshizuka & Oka 1996, experiment")
     ax.set_xlim(0, 3.2)
     ax.set_ylim(1, 4.1)
-    ax.set_xlabel(r"$T = t\sqrt{2g/L}$")
-    ax.set_ylabel(r"$Z = x_{front}/L$")
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    schemes.save(fig, path)
+    schemes.save(fig, path, ax, r"$T = t\sqrt{2g/L}$", r"$Z = x_{front}/L$")
 
 
 def speed_table(runs: list[Run]) -> str:
@@ -177,16 +170,13 @@ def figures(folder: Path, speed: Speed):
     speed.explicit_c0[-1].picture(folder / "explicit_c0.png")
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--full", action="store_true", help="2 s of flow (tens of minutes)")
-    args = parser.parse_args(argv)
-    schemes.warm_up()
-    speed = measure(schemes.FULL if args.full else schemes.SHORT)
+def report(w: Windows):
+    """Measure and print the tables and the closing sentences."""
+    speed = measure(w)
     print(speed_table(speed.implicit + speed.explicit))
     print(ratio_table(speed.ratios, speed.implicit))
     print("\n".join(summary_sentences(speed)))
 
 
 if __name__ == "__main__":
-    main()
+    schemes.run_alone(__doc__, report)

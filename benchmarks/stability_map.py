@@ -9,7 +9,6 @@ ran), each for the window of :mod:`schemes`. A section of ``docs/implicit-vs-exp
 
 from __future__ import annotations
 
-import argparse
 from math import sqrt
 from pathlib import Path
 
@@ -49,7 +48,6 @@ def plot(path: Path, runs: dict[str, list[Run]]):
     ax.set_xlabel("time step dt (s)")
     ax.set_title("stability map: o ran the window (time reached), X stopped", fontsize=9)
     ax.grid(alpha=0.3, axis="x")
-    fig.tight_layout()
     schemes.save(fig, path)
 
 
@@ -65,13 +63,5 @@ def table(runs: dict[str, list[Run]]) -> str:
                         "wall per simulated s (s)"], map(row, runs["implicit"] + runs["explicit_water"]))
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--full", action="store_true", help="the long windows (tens of minutes)")
-    args = parser.parse_args(argv)
-    schemes.warm_up()
-    print(table(measure(schemes.FULL if args.full else schemes.SHORT)))
-
-
 if __name__ == "__main__":
-    main()
+    schemes.run_alone(__doc__, lambda w: print(table(measure(w))))

@@ -46,9 +46,8 @@ import sys
 from mpi4py import MPI
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
-from fempm import output
 from fempm.cases import channel
-from fempm.verification import METHODS, case_arguments
+from fempm.verification import METHODS, case_arguments, over_bounds
 
 FLOW = channel.COUETTE
 args, folder = case_arguments("Plane Couette flow (see the file's first cells).", cells=16, dt=0.005,
@@ -62,11 +61,7 @@ args, folder = case_arguments("Plane Couette flow (see the file's first cells)."
 
 # %%
 rows = [r for method in METHODS for r in channel.solve(FLOW, method, args.basis, args.cells, args.dt, args.ppc)]
-if MPI.COMM_WORLD.rank == 0:
-    for r in rows:
-        print(f"{r.method:8s} {r.case:18s} error {'-' if r.error is None else f'{r.error:.2e}'}  ({r.wall:.1f} s)")
-    output.write_json(folder / "errors.json", {m: [r.as_dict() for r in rows if r.method == m] for m in METHODS})
-    channel.plot_profiles(folder / "profile.png", FLOW, rows, "Plane Couette flow, started impulsively", "u / U")
+channel.write_results(folder, FLOW, rows, "Plane Couette flow, started impulsively", "u / U")
 
 # %% [markdown]
 # ## The check
@@ -77,9 +72,7 @@ if MPI.COMM_WORLD.rank == 0:
 
 # %%
 BOUNDS = {"MPM": 0.009, "FEM-only": 0.0056}  # measured 0.00836 and 0.00526 (1 and 2 ranks)
-transient = [r for r in rows if r.case.endswith(f"t={FLOW.transient:g}")]
-failed = [f"{r.method}: {r.cause or f'error {r.error:.3g} above {BOUNDS[r.method]:g}'}" for r in transient
-          if r.error is None or r.error > BOUNDS[r.method]]
+failed = over_bounds([r for r in rows if r.case.endswith(f"t={FLOW.transient:g}")], BOUNDS)
 if failed:
     if MPI.COMM_WORLD.rank == 0:
         print("couette: " + "; ".join(failed), file=sys.stderr)

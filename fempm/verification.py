@@ -20,8 +20,8 @@ from fempm.implicit import ImplicitSolver
 from fempm.options import Physics, Scheme
 from fempm.particles import Particles, Rectangle
 
-__all__ = ["METHODS", "Measurement", "Run", "advance", "case_arguments", "filled_solver", "max_relative_error", "rates",
-           "sample"]
+__all__ = ["METHODS", "Measurement", "Run", "advance", "case_arguments", "filled_solver", "max_relative_error",
+           "over_bounds", "rates", "sample"]
 
 METHODS = ("MPM", "FEM-only")
 
@@ -136,6 +136,12 @@ class Measurement:
     def as_dict(self) -> dict:
         """The row as a plain dictionary (for JSON)."""
         return asdict(self)
+
+
+def over_bounds(rows: list[Measurement], bounds: dict[str, float]) -> list[str]:
+    """A demo's check: each row whose run stopped, or whose error is above ``bounds[row.method]``, as a line."""
+    return [f"{r.method} {r.case}: {r.cause or f'error {r.error:.3g} above {bounds[r.method]:g}'}" for r in rows
+            if r.error is None or r.error > bounds[r.method]]
 
 
 def case_arguments(description: str, cells: int, dt: float, dt_unit: str, out: str, argv=None):

@@ -79,7 +79,7 @@ def test_hydrostatic_column_bottom_pressure(comm):
     follow are not damped (mu = 1e-3 Pa s), so the bottom pressure is averaged over
     0.1 s <= t <= 0.4 s (some eight periods 4H/c0 of the column's first mode).
 
-    Reduced compressibility: c0 = 10 sqrt(2 g H) (K = 0.57 MPa). Measured: 0.990 rho g depth.
+    Reduced compressibility: c0 = 10 sqrt(2 g H) (K = 0.57 MPa).
     """
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (WIDTH, 0.584), (10, 40))
     water = fempm.Particles(grid)
@@ -94,7 +94,8 @@ def test_hydrostatic_column_bottom_pressure(comm):
         if solver.time >= 0.1:
             ratios.append(total(comm, [np.sum(water["pressure"][bottom] / hydrostatic), bottom.sum()]))
     mean_ratio = np.sum([r[0] for r in ratios]) / np.sum([r[1] for r in ratios])
-    assert abs(mean_ratio - 1) < 0.05, f"mean bottom pressure / rho g depth = {mean_ratio:.4f}"
+    print(f"mean bottom pressure / rho g depth = {mean_ratio:.5f}")
+    assert 0.988 < mean_ratio < 0.993  # measured 0.9904
 
 
 @pytest.mark.mpi

@@ -85,8 +85,8 @@ def cavity_solver(method: str, cells: int, basis: str, dt: float, per_cell: int 
     """The cavity at rest: the FEM-only reference, or the MPM with ``per_cell`` x ``per_cell``
     particles in every cell (:func:`fempm.verification.filled_solver`)."""
     grid = cavity_grid(cells, comm)
-    return filled_solver(method, BASES[basis](grid), PHYSICS, Scheme(dt=dt, alpha=alpha, pic_blend=pic), density=DENSITY,
-                         per_cell=per_cell)
+    return filled_solver(method, BASES[basis](grid), PHYSICS, Scheme(dt=dt, alpha=alpha, pic_blend=pic),
+                         density=DENSITY, per_cell=per_cell)
 
 
 # -- centre-line velocities: sampled after every step, averaged over the window ------------------
@@ -222,7 +222,8 @@ def run_case(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, 
     counts = None
     if method == "MPM":
         summary, counts = occupancy(solver.particles, per_cell)
-        extra.update(summary, alpha=alpha, pic_blend=pic, wall_stops=solver.walls.stops, courant=LID_SPEED * dt * cells / SIDE)
+        extra.update(summary, alpha=alpha, pic_blend=pic, wall_stops=solver.walls.stops,
+                     courant=LID_SPEED * dt * cells / SIDE)
     measurement = Measurement(
         case="cavity", method=method, basis=BASES[basis].name, cells=cells, dt=dt,
         ppc=per_cell**2 if method == "MPM" else 0, error=max(error_u, error_v) if completed else None,
@@ -262,7 +263,8 @@ def plot(path: Path, ghia: Ghia, runs: list[CavityRun]):
         image = axes[2].imshow(mpm.counts / seeded, origin="lower", extent=(0, SIDE, 0, SIDE), cmap="viridis",
                                vmin=0, vmax=max(2.0, float(mpm.counts.max()) / seeded))
         fig.colorbar(image, ax=axes[2], label="particles per cell / seeded")
-        axes[2].set(xlabel="x / L", ylabel="y / L", title=f"MPM particles at t = {mpm.measurement.extra['end_time']:g} L/U")
+        axes[2].set(xlabel="x / L", ylabel="y / L",
+                    title=f"MPM particles at t = {mpm.measurement.extra['end_time']:g} L/U")
     fig.suptitle(f"Lid-driven cavity, Re = {LID_SPEED * SIDE / KINEMATIC_VISCOSITY:g}: mean over the last "
                  f"{runs[0].measurement.extra['window']:g} L/U")
     fig.tight_layout()

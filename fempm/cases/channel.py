@@ -26,9 +26,10 @@ from fempm.bases import BASES
 from fempm.eulerian import EulerianSolver
 from fempm.grid import Grid
 from fempm.options import Physics, Scheme
-from fempm.verification import Measurement, advance, filled_solver, max_relative_error, sample
+from fempm.verification import METHODS, Measurement, advance, filled_solver, max_relative_error, sample
 
-__all__ = ["COUETTE", "Flow", "H", "NU", "POISEUILLE", "Y", "channel", "plot_profiles", "section", "solve"]
+__all__ = ["COUETTE", "Flow", "H", "NU", "POISEUILLE", "Y", "channel", "plot_profiles", "section", "solve",
+           "write_results"]
 
 H, NU = 1.0, 1.0
 Y = np.linspace(0.0, H, 41)  #: heights where the profile is compared
@@ -145,3 +146,13 @@ def plot_profiles(path, flow: Flow, rows: list[Measurement], title: str, quantit
     with output.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png")
     plt.close(fig)
+
+
+def write_results(folder, flow: Flow, rows: list[Measurement], title: str, quantity: str):
+    """On rank 0: a line per row, ``errors.json`` (the rows by method) and ``profile.png`` in ``folder``."""
+    if MPI.COMM_WORLD.rank != 0:
+        return
+    for r in rows:
+        print(f"{r.method:8s} {r.case:18s} error {'-' if r.error is None else f'{r.error:.2e}'}  ({r.wall:.1f} s)")
+    output.write_json(folder / "errors.json", {m: [r.as_dict() for r in rows if r.method == m] for m in METHODS})
+    plot_profiles(folder / "profile.png", flow, rows, title, quantity)

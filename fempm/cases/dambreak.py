@@ -32,7 +32,7 @@ from fempm.scene import Scene, parse_scene
 from fempm.simulation import build_material
 
 __all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "TANK", "WIDTH", "add_flags", "changes",
-           "explicit_solver", "front_measures", "petsc_options", "plot_front", "read_front", "scene"]
+           "compare_front", "explicit_solver", "front_measures", "petsc_options", "plot_front", "read_front", "scene"]
 
 SCENE = Path(__file__).resolve().parents[2] / "scenes" / "dambreak.toml"
 WIDTH = references.DAMBREAK_COLUMN_WIDTH  #: L, the column's width, m
@@ -109,7 +109,7 @@ def add_flags(parser: argparse.ArgumentParser):
     flag("--walls", choices=("slip", "no-slip"), help="every wall (scene: slip)")
     flag("--viscosity", dest="fluid.viscosity", type=float, metavar="MU", help="Pa s (scene: 1e-3)")
     flag("--pic", dest="solver.pic_blend", type=float, metavar="SHARE", help="PIC share of the FLIP/PIC update, 0..1")
-    flag("--forms", dest="solver.forms", type=_forms, metavar="FORMS", help="weak forms: a name of forms/ or a .py file")
+    flag("--forms", dest="solver.forms", type=_forms, metavar="FORMS", help="weak forms: a forms/ name or a .py file")
     flag("--out", dest="output.folder", metavar="DIR", help="output folder (scene: results/dambreak)")
     flag("--output-interval", type=float, metavar="S", help="ParaView series every S seconds (scene: 0.05)")
     flag("--no-files", dest="files", action="store_false", help="only the tables, front.png and summary.json")
@@ -165,6 +165,19 @@ def front_measures(front: np.ndarray) -> dict[str, float]:
         "front_rms_error_vs_martin_moyce": references.front_difference(
             front, references.dambreak_front("martin_moyce_1952_n2_2_a2.25in"), T_min=0.0),
     }
+
+
+def compare_front(folder: str | Path, summary: dict, label: str, comm=MPI.COMM_WORLD) -> dict[str, float]:
+    """A finished run's front (``front.csv`` in ``folder``) against the references: its
+    :func:`front_measures`, the same on every rank, join ``summary`` and ``summary.json``, and
+    ``front.png`` draws the front labelled ``label`` over the references (rank 0)."""
+    front = comm.bcast(read_front(folder) if comm.rank == 0 else None, root=0)
+    measures = front_measures(front)
+    summary.update(measures)
+    if comm.rank == 0:
+        output.write_json(Path(folder) / "summary.json", summary)
+        plot_front(Path(folder) / "front.png", front, label, measures)
+    return measures
 
 
 def plot_front(path: str | Path, front: np.ndarray, label: str, measures: Mapping[str, float]):
