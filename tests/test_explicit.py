@@ -146,7 +146,7 @@ def test_the_divergence_names_time_step_and_cause(comm):
     with pytest.raises(SimulationDiverged) as caught:
         for _ in range(10):
             solver.step()
-    assert caught.value.step <= 5 and caught.value.time == pytest.approx(1e-4 * caught.value.step)
+    assert caught.value.step == 4 and caught.value.time == pytest.approx(4e-4)  # measured (docs/implicit-vs-explicit.md)
     assert caught.value.cause
 
 
