@@ -64,6 +64,7 @@
 import argparse
 import sys
 import time
+from pathlib import Path
 
 from mpi4py import MPI
 
@@ -74,6 +75,7 @@ from fempm.errors import FempmError, SimulationDiverged
 from fempm.progress import Progress
 
 comm = MPI.COMM_WORLD
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
 
 
 def stop(message: str, status: int):
@@ -106,7 +108,7 @@ flag("--no-pspg", dest="solver.pspg", action="store_const", const=False, help="P
 args, rest = parser.parse_known_args()
 try:
     petsc = dambreak.petsc_options(rest)
-    scene = dambreak.scene({**dambreak.changes(args), "solver.petsc": petsc}, files=args.files)
+    scene = dambreak.scene({**dambreak.changes(args), "solver.petsc": petsc}, files=args.files, source=SCENE)
 except FempmError as e:
     stop(str(e), 2)
 

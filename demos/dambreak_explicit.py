@@ -45,6 +45,7 @@
 # %%
 import argparse
 import sys
+from pathlib import Path
 
 from mpi4py import MPI
 
@@ -55,6 +56,7 @@ from fempm.errors import FempmError
 from fempm.explicit import DEFAULT_CFL, ExplicitScheme
 
 comm = MPI.COMM_WORLD
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
 
 
 def stop(message: str, status: int):
@@ -99,7 +101,7 @@ except ValueError:
 
 # %%
 try:
-    scene = dambreak.scene(dambreak.changes(args), files=args.files)
+    scene = dambreak.scene(dambreak.changes(args), files=args.files, source=SCENE)
     solver = dambreak.explicit_solver(scene, comm, dt=args.dt, cfl=args.cfl, bulk_modulus=args.bulk_modulus,
                                       sound_speed=sound_speed, pic_blend=scene.solver.pic_blend,
                                       forms=scene.solver.forms)

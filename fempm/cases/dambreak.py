@@ -34,6 +34,7 @@ from fempm.simulation import build_material
 __all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "TANK", "WIDTH", "add_flags", "changes",
            "compare_front", "explicit_solver", "front_measures", "petsc_options", "plot_front", "read_front", "scene"]
 
+#: the repository's scene (``scenes/`` is not installed with the package: a demo passes its own path)
 SCENE = Path(__file__).resolve().parents[2] / "scenes" / "dambreak.toml"
 WIDTH = references.DAMBREAK_COLUMN_WIDTH  #: L, the column's width, m
 HEIGHT = 2 * WIDTH  #: the column's height, m
