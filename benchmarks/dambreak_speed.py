@@ -9,25 +9,23 @@ prints the time per phase and the ratio to the seed's 324 s.
 """
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 from mpi4py import MPI
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "demos"))
-import dambreak  # noqa: E402
+import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
+from fempm.cases import dambreak
+from fempm.simulation import build_solver
 
 SEED_SECONDS = 324.0
 
 
 def timed_run(end_time: float, basis: str, dt: float) -> dict:
     """Run the dam break without output files; the solver's phase timings and the total."""
-    args, _ = dambreak.parse_arguments(["--basis", basis, "--no-files", "--quiet", "--end-time", str(end_time),
-                                        "--dt", str(dt)])
-    solver = dambreak.build(args, MPI.COMM_WORLD)
+    scene = dambreak.scene({"solver.basis": basis, "time.end": end_time, "time.dt": dt}, files=False)
+    solver = build_solver(scene, MPI.COMM_WORLD)
     start = time.perf_counter()
-    for _ in range(int(round(end_time / args.dt))):
+    for _ in range(scene.time.steps):
         solver.step()
     total = time.perf_counter() - start
     return {"total": total, **solver.timings, "steps": solver.steps}

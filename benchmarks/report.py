@@ -1,11 +1,10 @@
 """Verification report: every case's error against its reference and wall time, MPM against FEM-only.
 
-Runs the ``study()`` of each verification demo (``demos/hydrostatic.py``, ``poiseuille.py``,
-``couette.py``, ``cavity.py``, ``dambreak.py``) in one process and writes
-``docs/verification.md`` with, per case, the table of runs (method, basis, cells, time step,
-particles per cell, error, wall time of the steps), the observed convergence rates under
-grid refinement, and PNG plots of error against wall time and against cell size
-(in ``docs/verification/``). The raw rows go to ``docs/verification/results.json``.
+Runs each case's study (``benchmarks/studies.py``) in one process and writes
+``docs/verification.md`` from ``templates/verification.md`` with, per case, the table of runs
+(method, basis, cells, time step, particles per cell, error, wall time of the steps), the
+observed convergence rates under grid refinement, and PNG plots of error against wall time and
+against cell size (in ``docs/verification/``). The raw rows go to ``docs/verification/results.json``.
 
     python benchmarks/report.py [--full] [--cases poiseuille couette ...] [--doc docs/verification.md]
 
@@ -16,23 +15,16 @@ and time step to each (an hour or more). Run serially: wall times are of one pro
 from __future__ import annotations
 
 import argparse
-import importlib
-import os
-import platform
-import subprocess
 import sys
 import time
 from collections import defaultdict
-from datetime import datetime, timezone
 from pathlib import Path
 
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "demos"))
-
-import fempm  # noqa: E402,F401  (imports dolfinx_solver before dolfinx and petsc4py)
-from fempm import output  # noqa: E402
-from fempm.verification import Measurement, rates  # noqa: E402
+import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
+import pages
+import studies
+from fempm import output
+from fempm.verification import Measurement, rates
 
 CASES = {  # demo module: what its error measures, and the further measures its table shows
     "hydrostatic": ("max |p - rho g d| / (rho g H) on the centre line after 0.2 s; beside it the bottom "
@@ -51,21 +43,6 @@ CASES = {  # demo module: what its error measures, and the further measures its 
 }
 
 
-def run_studies(cases: list[str], full: bool) -> dict[str, list[Measurement]]:
-    """Each case's study, timed; a case whose demo is missing is reported and skipped."""
-    results = {}
-    for case in cases:
-        try:
-            module = importlib.import_module(case)
-        except ModuleNotFoundError:
-            print(f"report: no demos/{case}.py, skipped", flush=True)
-            continue
-        start = time.perf_counter()
-        results[case] = module.study(full=full)
-        print(f"report: {case}: {len(results[case])} runs in {time.perf_counter() - start:.0f} s", flush=True)
-    return results
-
-
 def series(rows: list[Measurement]) -> dict[tuple, list[Measurement]]:
     """Rows that differ only in the cell count, by (case, method, basis, dt, ppc), sorted by cells."""
     groups = defaultdict(dict)
@@ -76,23 +53,21 @@ def series(rows: list[Measurement]) -> dict[tuple, list[Measurement]]:
     return {k: [g[c] for c in sorted(g)] for k, g in groups.items() if len(g) >= 2}
 
 
-# -- the page -----------------------------------------------------------------------------------
-def table(rows: list[Measurement], extras: tuple[str, ...]) -> list[str]:
-    """The runs of one case as a Markdown table, with the named further measures."""
-    head = ["case", "method", "basis", "cells", "dt", "ppc", "PIC", "error", *extras, "wall (s)", "outcome"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for r in rows:
-        pic = r.extra.get("pic_blend")
-        cells = [r.case, r.method, r.basis, str(r.cells), f"{r.dt:g}", str(r.ppc) if r.ppc else "-",
-                 "-" if pic is None or r.method != "MPM" else f"{pic:g}", fmt(r.error),
-                 *(fmt(r.extra.get(k)) for k in extras), f"{r.wall:.2f}",
-                 r.status if r.status == "completed" else f"{r.status}: {r.cause}"]
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
-
-
 def fmt(x) -> str:
     return "-" if x is None else f"{x:.2e}"
+
+
+def case_table(rows: list[Measurement], extras: tuple[str, ...]) -> str:
+    """The runs of one case as a Markdown table, with the named further measures."""
+    def row(r: Measurement) -> list[str]:
+        pic = r.extra.get("pic_blend")
+        return [r.case, r.method, r.basis, str(r.cells), f"{r.dt:g}", str(r.ppc) if r.ppc else "-",
+                "-" if pic is None or r.method != "MPM" else f"{pic:g}", fmt(r.error),
+                *(fmt(r.extra.get(k)) for k in extras), f"{r.wall:.2f}",
+                r.status if r.status == "completed" else f"{r.status}: {r.cause}"]
+
+    head = ["case", "method", "basis", "cells", "dt", "ppc", "PIC", "error", *extras, "wall (s)", "outcome"]
+    return pages.table(head, map(row, rows))
 
 
 def rate_lines(rows: list[Measurement]) -> list[str]:
@@ -149,35 +124,16 @@ def write_page(doc: Path, results: dict[str, list[Measurement]], full: bool, sec
     figures = doc.with_suffix("")
     figures.mkdir(parents=True, exist_ok=True)
     output.write_json(figures / "results.json", {c: [r.as_dict() for r in rows] for c, rows in results.items()})
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                            text=True).stdout.strip()
-    text = [
-        "# Verification: MPM against FEM-only, analytic solutions and experiments",
-        "",
-        f"Generated by `python benchmarks/report.py{' --full' if full else ''}` on "
-        f"{datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, fempm {commit or '?'}, "
-        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores shared with other work, "
-        f"one process; the studies took {seconds:.0f} s. Every number below comes from that run. "
-        "Wall times are of the steps alone (set-up and form compilation excluded) and carry the "
-        "noise of a shared machine.",
-        "",
-        "MPM: the implicit material point method of `fempm.implicit` (particles are the quadrature "
-        "points). FEM-only: the same weak forms (`forms/incompressible.py`) with Gauss quadrature on "
-        "the fixed grid (`fempm.eulerian`), with the convective term `rho (v_n . grad) v_{n+1}` that "
-        "a fixed grid needs. `ppc` counts particles per cell; `PIC` is the MPM's PIC share of the "
-        "velocity update.",
-        "",
-    ]
+    sections = []
     for case, rows in results.items():
         plot_case(figures / f"{case}.png", case, rows)
         measure, extras = CASES[case]
-        text += [f"## {case}", "", f"Error: {measure}.", "", *table(rows, extras), ""]
-        rates_ = rate_lines(rows)
-        if rates_:
-            text += ["Under grid refinement:", "", *rates_, ""]
-        text += [f"![{case}: error against wall time and cell count]({figures.name}/{case}.png)", ""]
-    with output.atomic_path(doc) as tmp:
-        tmp.write_text("\n".join(text))
+        orders = "".join(f"{line}\n" for line in rate_lines(rows))
+        sections.append(pages.fill("verification-case.md", case=case, measure=measure, table=case_table(rows, extras),
+                                   rates=f"Under grid refinement:\n\n{orders}\n" if orders else "",
+                                   figures=figures.name).rstrip("\n"))
+    pages.write(doc, pages.fill("verification.md", flags=" --full" if full else "", seconds=f"{seconds:.0f}",
+                                cases="\n\n".join(sections), **pages.provenance()))
 
 
 def main(argv=None) -> int:
@@ -185,10 +141,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--full", action="store_true", help="the complete studies (an hour or more)")
     parser.add_argument("--cases", nargs="+", choices=tuple(CASES), default=list(CASES), help="which cases")
-    parser.add_argument("--doc", type=Path, default=ROOT / "docs" / "verification.md", help="the page to write")
+    parser.add_argument("--doc", type=Path, default=pages.ROOT / "docs" / "verification.md", help="the page to write")
     args = parser.parse_args(argv)
     start = time.perf_counter()
-    results = run_studies(args.cases, args.full)
+    results = {}
+    for case in args.cases:
+        begin = time.perf_counter()
+        results[case] = studies.STUDIES[case](full=args.full)
+        print(f"report: {case}: {len(results[case])} runs in {time.perf_counter() - begin:.0f} s", flush=True)
     write_page(args.doc, results, args.full, time.perf_counter() - start)
     print(f"report: wrote {args.doc}")
     return 0

@@ -57,7 +57,8 @@ def test_water_falling_on_a_pillar_splits_around_it_and_never_enters():
     x = solver.particles.x
     low = x[:, 1] < 0.075
     count = lambda mask: comm.allreduce(int(mask.sum()))  # noqa: E731
-    assert count(low & (x[:, 0] < 0.135)) > 20 and count(low & (x[:, 0] > 0.165)) > 20  # split both ways
+    left, right = count(low & (x[:, 0] < 0.135)), count(low & (x[:, 0] > 0.165))
+    assert 40 <= left <= 46 and 40 <= right <= 46  # split both ways, evenly: measured 43 and 43
     assert count(low & (x[:, 0] > 0.135) & (x[:, 0] < 0.165)) == 0
     assert count(np.ones(len(x), bool)) == 200  # none lost
 
@@ -96,4 +97,4 @@ def test_a_no_slip_floor_holds_the_tangential_velocity_and_a_slip_floor_does_not
         floor = np.isin(space.local_to_global[: space.num_owned_dofs], space.wall_dofs("u", 0, "b"))
         floor_speed[bottom] = comm.allreduce(
             float(np.abs(solver.system.U.vector.array[: space.num_owned_dofs][floor]).max(initial=0.0)), op=MPI.MAX)
-    assert floor_speed["no-slip"] == 0.0 and floor_speed["slip"] > 1e-5
+    assert floor_speed["no-slip"] == 0.0 and floor_speed["slip"] > 3.5e-4  # m per step; measured 3.85e-4

@@ -244,6 +244,10 @@ def test_dambreak_scene_is_the_seed_setup(comm):
         (1e-3, 1e-3, 0.1, True, 0.1, (0.0, -9.81))
     assert set(physics.wall_conditions().values()) == {"slip"} and solver.basis.name == "B-spline"
     assert math.isclose(scene.time.end, 1.0)
+    from fempm.cases import dambreak  # the case's constants are the scene's
+
+    assert (scene.domain.upper, scene.bodies[0].upper, scene.gravity[1]) == \
+        ((dambreak.TANK, dambreak.TANK), (dambreak.WIDTH, dambreak.HEIGHT), -dambreak.GRAVITY)
 
 
 def test_check_prints_the_resolved_scene(capsys):
