@@ -1,35 +1,34 @@
 """The ``fempm`` command's entry point: stop requests are taken before fempm is even imported.
 
-Importing fempm (DOLFINx, PETSc, numba) takes about a second; a SIGINT or SIGTERM in that
-time ends the command with one line and the status 128 + the signal number instead of a
-traceback. Everything else is :func:`fempm.cli.main`. This module is top-level (not in
-the package) because importing anything in ``fempm`` first runs ``fempm/__init__.py``.
+Importing fempm (DOLFINx, PETSc, numba) takes about a second. A SIGINT or SIGTERM in that
+time is noted, not raised: an exception thrown through a half-initialised extension module
+(MPI, PETSc) can crash the interpreter at exit. Once the import is complete the command ends
+with one line and the status 128 + the signal number. Everything else is
+:func:`fempm.cli.main`. This module is top-level (not in the package) because importing
+anything in ``fempm`` first runs ``fempm/__init__.py``.
 """
 
 import signal
 import sys
 
-
-class _Interrupted(BaseException):
-    pass
+_received: list[int] = []
 
 
-def _interrupt(signum, frame):
-    raise _Interrupted(signum)
+def _note(signum, frame):
+    _received.append(signum)
 
 
 def main() -> int:
     """Run ``fempm`` (see :mod:`fempm.cli`)."""
     for s in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(s, _interrupt)
-    try:
-        from fempm.cli import main as run
+        signal.signal(s, _note)
+    from fempm.cli import main as run
 
-        return run()  # which takes the signals over at once
-    except _Interrupted as stop:
-        name = signal.Signals(stop.args[0]).name
+    if _received:
+        name = signal.Signals(_received[0]).name
         print(f"fempm: interrupted by {name} while starting: nothing was run", file=sys.stderr, flush=True)
-        return 128 + stop.args[0]
+        return 128 + _received[0]
+    return run()  # which takes the signals over at once
 
 
 if __name__ == "__main__":

@@ -182,12 +182,12 @@ class ExplicitSolver(Stepper):
         with self.timings("forces"):
             force = self.forces()
         with self.timings("grid"):
-            v_old, v_new = self.update_grid(momentum, force)
+            v_old, v_new = self.update_grid(momentum, force, dt)
         with self.timings("update"):
-            self.update_particles(v_old, v_new)
+            self.update_particles(v_old, v_new, dt)
         with self.timings("stress"):
-            x_old = self.update_stress()
-        self._stop_if_diverged(x_old)
+            x_old = self.update_stress(dt)
+        self._stop_if_diverged(x_old, dt)
         with self.timings("relocate"):
             self.particles.relocate()
 
@@ -208,12 +208,12 @@ class ExplicitSolver(Stepper):
         self._force.scatter_forward()
         return self._force.array.reshape(-1, 2)
 
-    def update_grid(self, momentum: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def update_grid(self, momentum: np.ndarray, force: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Forward Euler on the grid momentum with the walls; returns ``v_n`` and ``v_{n+1}``."""
-        new = np.where(self._held, 0.0, momentum + self.dt * force)
+        new = np.where(self._held, 0.0, momentum + dt * force)
         return momentum * self._inverse_mass, new * self._inverse_mass
 
-    def update_particles(self, v_old: np.ndarray, v_new: np.ndarray):
+    def update_particles(self, v_old: np.ndarray, v_new: np.ndarray, dt: float):
         """G2P: FLIP ``v_p += sum_i (v_i^{n+1} - v_i^n) N_i(x_p)`` (or a PIC blend) and ``a_p``."""
         p, g = self.particles, self._g2p
         g.field("dv")[:] = v_new - v_old
@@ -221,9 +221,9 @@ class ExplicitSolver(Stepper):
         at = transfer.grid_to_particles(g, p)
         change, new = at[:, g.space.field_slice("dv")], at[:, g.space.field_slice("v")]
         p["velocity"][:] = transfer.flip(p["velocity"], change, new, self.scheme.pic_blend)
-        p["acceleration"][:] = change / self.dt
+        p["acceleration"][:] = change / dt
 
-    def update_stress(self) -> np.ndarray:
+    def update_stress(self, dt: float) -> np.ndarray:
         """MUSL: grid velocity re-projected from the new particle momenta; then x_p, L_p, volume, pressure.
 
         The re-projected ``v_i = sum_p m_p v_p N_i / m_i`` is a mass-weighted mean of
@@ -235,7 +235,7 @@ class ExplicitSolver(Stepper):
 
         Returns the positions before the move (for the divergence check).
         """
-        p, dt = self.particles, self.dt
+        p = self.particles
         momentum = transfer.momentum(self.vector_space, p, self._momentum).values
         self.velocity.values[:] = np.where(self._held, 0.0, momentum) * self._inverse_mass
         jets = transfer.grid_jets_to_particles(self.velocity, p, order=1)
@@ -263,14 +263,14 @@ class ExplicitSolver(Stepper):
         return out
 
     # -- divergence ----------------------------------------------------------------------
-    def _stop_if_diverged(self, x_old: np.ndarray):
+    def _stop_if_diverged(self, x_old: np.ndarray, dt: float):
         """Raise :class:`~fempm.linear.SolveFailed` on every rank if any rank finds a cause."""
-        causes = self.comm.allgather(self._local_cause(x_old))
+        causes = self.comm.allgather(self._local_cause(x_old, dt))
         cause = next((c for c in causes if c), None)
         if cause:
             raise SolveFailed(cause)
 
-    def _local_cause(self, x_old: np.ndarray) -> str | None:
+    def _local_cause(self, x_old: np.ndarray, dt: float) -> str | None:
         p, h = self.particles, self.grid.h
 
         def first(bad: np.ndarray) -> int:
@@ -284,7 +284,7 @@ class ExplicitSolver(Stepper):
         if moved.max(initial=0.0) > 1.0:
             k = int(np.argmax(moved))
             return (f"particle {p.id[k]} moved {moved[k]:.3g} cells in one step (|v| dt > h): "
-                    f"dt = {self.dt:.3g} s violates the CFL condition")
+                    f"dt = {dt:.3g} s violates the CFL condition")
         bad = ~(self._volume_ratio > 0)
         if bad.any():
             return (f"the volume of particle {first(bad)} collapsed (det(I + dt L) = "

@@ -105,17 +105,20 @@ class Stepper:
         landed = until is not None and abs(self.time + dt - until) <= TIME_TOLERANCE * max(abs(until), dt)
         self.time = until if landed else self.time + dt
         self.steps += 1
-        self.dt = self._previous = dt
+        self._previous = dt
+        if self.control:
+            self.dt = dt  # a fixed step stays what it was, after a last shorter one too
 
     def _size(self, until: float | None) -> float:
         """The step: fixed, or the control's choice; shortened to land on ``until`` without a sliver
         (what is left is cut into equal steps)."""
-        if self.control is None:
-            return self.dt
-        dt = self.control.choose(self.fastest(), self.cell_size(), self._previous)
+        dt = self.dt if self.control is None else self.control.choose(self.fastest(), self.cell_size(),
+                                                                      self._previous)
         if until is None:
             return dt
         remaining = until - self.time
+        if self.control is None:  # a fixed step: only a last, shorter one to land on ``until``
+            return min(dt, remaining)
         if remaining <= dt * (1 + TIME_TOLERANCE):
             return remaining
         return remaining / math.ceil(remaining / dt * (1 - TIME_TOLERANCE))

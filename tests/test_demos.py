@@ -6,6 +6,7 @@ break runs serially and on two ranks. The demos are run in subprocesses: nothing
 """
 
 import json
+import re
 import os
 import shutil
 import subprocess
@@ -73,7 +74,7 @@ def test_dambreak_short_run_writes_its_files_on_any_number_of_ranks(tmp_path, ra
 
 
 @pytest.mark.parametrize("flags, message", [
-    (["--dt", "0"], "time.dt: must be a number > 0"),
+    (["--dt", "0"], "command line: --dt: must be a number > 0"),
     (["--cells", "42"], "--cells: must be a positive multiple of 4"),
     (["-fempm_ksp_type", "preonly", "--bogus"], "unrecognised argument '--bogus'"),
 ])
@@ -83,12 +84,28 @@ def test_dambreak_bad_input_is_one_message_and_status_2(tmp_path, flags, message
     assert not (tmp_path / "out").exists()  # nothing written
 
 
+def test_the_dambreak_demo_names_its_flags_not_the_shipped_scene(tmp_path):
+    out = ended(run_demo("dambreak", "--dt", "0.0003", "--no-files", "--quiet", "--out", tmp_path / "out"), status=2)
+    assert out.strip() == ("dambreak: command line: --end-time = 1 is not a whole number of steps of --dt = 0.0003 "
+                           "(3333.33); take 0.9999 or 1.0002 (3333 or 3334 steps)")
+
+
+def test_the_dambreak_demo_writes_to_its_own_folder_under_the_same_rule(tmp_path):
+    flags = ["--end-time", "0.002", "--no-files", "--quiet", "--out", tmp_path / "demo"]
+    ended(run_demo("dambreak", *flags))
+    out = ended(run_demo("dambreak", *flags), status=2)
+    assert re.search(r"--out = '.*demo' holds the outputs of an earlier run \(.*\): start afresh with --overwrite",
+                     " ".join(out.split()))
+    ended(run_demo("dambreak", *flags, "--overwrite"))
+
+
 def test_explicit_dambreak_short_run(tmp_path):
     out = ended(run_demo("dambreak_explicit", "--sound-speed", "auto", "--end-time", 0.02, "--output-interval", 0.01,
                          "--quiet", "--out", tmp_path))
     assert "not checked" in out
     summary = json.loads((tmp_path / "summary.json").read_text())
-    assert summary["status"] == "completed" and summary["steps"] == 72  # round(0.02 s / 2.77e-4 s), the CFL step
+    assert summary["status"] == "completed" and summary["steps"] == 74  # 2 x ceil(0.01 s / 2.77e-4 s): the CFL step, shortened to land on outputs
+    assert summary["time"] == 0.02
     assert len(list(tmp_path.glob("particles_*.vtp"))) == 3 and (tmp_path / "front.png").stat().st_size > 0
 
 

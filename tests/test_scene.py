@@ -357,18 +357,6 @@ def test_the_nearest_tank_sizes_offered_fit():
         assert scene.domain.shape[0] * scene.domain.h == pytest.approx(float(width), rel=1e-12)
 
 
-def test_the_demo_names_its_flags_not_the_shipped_scene():
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "demos"))
-    import dambreak
-
-    args, _ = dambreak.parse_arguments(["--dt", "0.0003", "--no-files", "--quiet"])
-    with pytest.raises(fempm.InputError) as refusal:
-        dambreak.scene_of(args)
-    assert str(refusal.value) == ("command line: --end-time = 1 is not a whole number of steps of --dt = 0.0003 "
-                                  "(3333.33); take 0.9999 or 1.0002 (3333 or 3334 steps)")
-    assert args.out == Path("results/dambreak-demo")  # its own folder, not the shipped scene's
-
-
 def test_an_adaptive_step_lifts_the_whole_step_rule():
     """With time.courant the steps land on the output times, so these need not be whole steps of dt."""
     from fempm.scene import scene_from_text
