@@ -62,8 +62,8 @@
 
 # %%
 import argparse
-import sys
 import time
+from functools import partial
 from pathlib import Path
 
 from mpi4py import MPI
@@ -78,11 +78,7 @@ comm = MPI.COMM_WORLD
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
 
 
-def stop(message: str, status: int):
-    """End the demo with ``message`` (rank 0) and exit ``status``: 1 the run failed, 2 bad input."""
-    if comm.rank == 0:
-        print(f"dambreak: {message}", file=sys.stderr, flush=True)
-    sys.exit(status)
+stop = partial(dambreak.stop, "dambreak")  # one line on rank 0, then the exit status
 
 
 # %% [markdown]

@@ -15,6 +15,7 @@ leave out).
 from __future__ import annotations
 
 import argparse
+import sys
 import tomllib
 from collections.abc import Mapping
 from dataclasses import asdict
@@ -33,7 +34,7 @@ from fempm.simulation import build_material, check_folder
 
 __all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "TANK", "WIDTH", "add_flags", "changes",
            "compare_front", "explicit_solver", "flag_names", "front_measures", "petsc_options", "plot_front",
-           "prepare_folder", "read_front", "scene"]
+           "prepare_folder", "read_front", "scene", "stop"]
 
 #: the repository's scene (``scenes/`` is not installed with the package: a demo passes its own path)
 SCENE = Path(__file__).resolve().parents[2] / "scenes" / "dambreak.toml"
@@ -237,3 +238,10 @@ def plot_front(path: str | Path, front: np.ndarray, label: str, measures: Mappin
     with output.atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=130, format="png")
     plt.close(fig)
+
+
+def stop(program: str, message: str, status: int, comm=MPI.COMM_WORLD):
+    """End a demo with ``program: message`` (rank 0) and exit ``status``: 1 the run failed, 2 bad input."""
+    if comm.rank == 0:
+        print(f"{program}: {message}", file=sys.stderr, flush=True)
+    sys.exit(status)
