@@ -125,14 +125,14 @@ class _JetCell:
         return np.array(out, dtype=np.int64)
 
 
-def _derivative_order(form: ufl.Form, subdomain: int) -> int:
-    """Highest number of nested gradients acting on a function in the integrals over ``subdomain``."""
-    from ufl.algorithms import expand_derivatives
+def _derivative_order(expanded: ufl.Form, subdomain: int) -> int:
+    """Highest number of nested gradients acting on a function in the integrals over ``subdomain``
+    of a form whose derivatives are expanded (``ufl.algorithms.expand_derivatives``)."""
     from ufl.classes import Grad, ReferenceGrad
     from ufl.corealg.traversal import unique_pre_traversal
 
     order = 0
-    for integral in expand_derivatives(form).integrals():
+    for integral in expanded.integrals():
         if integral.subdomain_id() not in (subdomain, (subdomain,)):
             continue
         for node in unique_pre_traversal(integral.integrand()):
@@ -361,9 +361,10 @@ class ParticleForm:
             symbols = Symbols(target, space, shapes, self.grid_functions, self.constants)
             form = builder(symbols)
             _check_cell_integrals(form)
-            if _derivative_order(form, _LUMPED) > 0:
+            expanded = ufl.algorithms.expand_derivatives(form)  # the slow part of building a form: once
+            if _derivative_order(expanded, _LUMPED) > 0:
                 raise InputError("an integral over dx_lumped may not take derivatives (it uses nodal values)")
-            needed = max(_derivative_order(form, _REGULAR), 1)
+            needed = max(_derivative_order(expanded, _REGULAR), 1)
             if needed <= order:
                 break
             if needed > 2:
@@ -384,7 +385,7 @@ class ParticleForm:
             self._kernels[ufcx.form_integral_ids[i]] = _KERNEL_TYPE(address)
         original = form.coefficients()
         self._coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
-        lumped = [i for i in ufl.algorithms.expand_derivatives(form).integrals() if i.subdomain_id() in (_LUMPED, (_LUMPED,))]
+        lumped = [i for i in expanded.integrals() if i.subdomain_id() in (_LUMPED, (_LUMPED,))]
         lumped_grid = {c for i in lumped for c in ufl.algorithms.extract_coefficients(i.integrand())
                        if symbols.used.get(c, ("",))[0] == "grid"}
         self._lumped_per_function = bool(lumped_grid)  # else one kernel call per particle will do
