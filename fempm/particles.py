@@ -135,6 +135,18 @@ def sub_cell_centres(origins: np.ndarray, h: float, per_cell: int) -> np.ndarray
 _STANDARD = {"x": (2,), "volume": (), "mass": (), "velocity": (2,), "acceleration": (2,)}
 
 
+def lattice_points(grid: Grid, body, n: int, earlier: list, first_id: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``n x n`` sub-cell centres of this rank's cells inside ``body`` and outside the
+    ``earlier`` bodies, with their ids ``first_id + cell * n**2 + sub`` (independent of the ranks)."""
+    cells = np.sort(grid.owned_cells)
+    x = sub_cell_centres(grid.cell_origin(cells), grid.h, n)
+    keep = body.contains(x)
+    for other in earlier:
+        keep &= ~other.contains(x)
+    ids = (first_id + cells[:, None] * n * n + np.arange(n * n)).ravel()[keep]
+    return x[keep], ids
+
+
 class Particles:
     """The particles held by this rank, as a struct of arrays.
 
@@ -175,9 +187,7 @@ class Particles:
         try:
             return self.fields[name]
         except KeyError:
-            raise KeyError(
-                f"particles have no field {name!r}; they have {sorted(self.fields)}"
-            ) from None
+            raise KeyError(f"particles have no field {name!r}; they have {sorted(self.fields)}") from None
 
     @property
     def x(self) -> np.ndarray:
@@ -229,18 +239,11 @@ class Particles:
                 f"seed: body with bounds {lo.tolist()}..{up.tolist()} is not inside the grid "
                 f"{self.grid.lower.tolist()}..{self.grid.upper.tolist()}"
             )
-        n = int(per_cell)
-        g = self.grid
-        cells = np.sort(g.owned_cells)
-        x = sub_cell_centres(g.cell_origin(cells), g.h, n)
-        keep = body.contains(x)
-        for earlier in self._bodies:
-            keep &= ~earlier.contains(x)
-        ids = (self._next_id + cells[:, None] * n * n + np.arange(n * n)).ravel()[keep]
+        x, ids = lattice_points(self.grid, body, int(per_cell), self._bodies, self._next_id)
         self._bodies.append(body)
-        self._next_id += g.num_cells * n * n
-        values = {name: value(x[keep]) if callable(value) else value for name, value in values.items()}
-        return self.add_points(x[keep], g.h**2 / n**2, density, ids=ids, **values)
+        self._next_id += self.grid.num_cells * int(per_cell) ** 2
+        values = {name: value(x) if callable(value) else value for name, value in values.items()}
+        return self.add_points(x, self.grid.h**2 / per_cell**2, density, ids=ids, **values)
 
     def add_points(self, x, volume, density: float = 1.0, ids=None, **values) -> int:
         """Add particles at the given positions (on any rank; they move to their owners).
@@ -327,18 +330,15 @@ class Particles:
     def check(self):
         """Raise a clear error for a non-finite position or a non-positive volume or mass."""
         for name in ("volume", "mass"):
-            bad = ~(self.fields[name] > 0)
-            if np.any(bad):
-                k = np.flatnonzero(bad)[0]
-                raise InputError(
-                    f"particle {self.id[k]}: {name} must be positive, got {self.fields[name][k]}"
-                )
-        bad = ~np.all(np.isfinite(self.x), axis=1)
-        if np.any(bad):
-            k = np.flatnonzero(bad)[0]
-            raise ParticleOutsideGridError(
-                f"particle {self.id[k]} has a non-finite position ({self.x[k, 0]}, {self.x[k, 1]})"
-            )
+            bad = np.flatnonzero(~(self.fields[name] > 0))
+            if bad.size:
+                k = bad[0]
+                raise InputError(f"particle {self.id[k]}: {name} must be positive, got {self.fields[name][k]}")
+        bad = np.flatnonzero(~np.all(np.isfinite(self.x), axis=1))
+        if bad.size:
+            k = bad[0]
+            raise ParticleOutsideGridError(f"particle {self.id[k]} has a non-finite position "
+                                           f"({self.x[k, 0]}, {self.x[k, 1]})")
 
     def relocate(self):
         """Locate every particle, send it to the rank owning its cell, sort by (cell, id).
@@ -348,60 +348,62 @@ class Particles:
         rank or, with ``on_exit="delete"``, are removed and counted in :attr:`lost_mass`.
         """
         self.check()
-        gone = self._gone()
+        gone = outside_or_blocked(self.grid, self.x)
         if self.on_exit == "delete":
             self._remove(gone)
         else:
-            self._raise_if_any(gone)
+            raise_if_any_gone(self.grid, self.x, self.id, gone)
         self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
-        self._migrate()
+        if self.grid.comm.size > 1:
+            self.fields = exchange(self.fields, self.grid.owner[self.cell], self.grid.comm)
         self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
         order = np.lexsort((self.id, self.cell))
         self._take(order)
         self.cache.clear()
 
-    def _gone(self) -> np.ndarray:
-        """Mask of the particles outside the grid or inside an obstacle cell."""
-        gone = self.grid.outside(self.x)
-        if self.grid.blocked.any():
-            inside = np.flatnonzero(~gone)
-            cells, _ = self.grid.locate(self.x[inside])
-            gone[inside[self.grid.blocked[cells]]] = True
-        return gone
 
-    def _raise_if_any(self, gone: np.ndarray):
-        """Raise :class:`ParticleOutsideGridError` on all ranks if any rank has a particle gone."""
-        comm = self.grid.comm
-        if comm.allreduce(int(gone.sum())) == 0:
-            return
-        message = None
-        if np.any(gone):
-            k = np.flatnonzero(gone)
-            x = self.x[k[0]]
-            try:
-                cell = self.grid.locate(x[None], ids=self.id[k[:1]])[0][0]
-                message = (f"particle {self.id[k[0]]} at ({x[0]:.6g}, {x[1]:.6g}) entered the obstacle "
-                           f"cell (column {cell % self.grid.nx}, row {cell // self.grid.nx})")
-            except ParticleOutsideGridError as outside:
-                message = str(outside)
-        first = next(m for m in comm.allgather(message) if m is not None)
-        total = comm.allreduce(int(gone.sum()))
-        raise ParticleOutsideGridError(first + (f" ({total} particles in all)" if total > 1 else ""))
+def exchange(fields: dict[str, np.ndarray], destination: np.ndarray, comm) -> dict[str, np.ndarray]:
+    """Send row ``k`` of every array to rank ``destination[k]``; returns what this rank receives."""
+    order = np.argsort(destination, kind="stable")
+    counts = np.bincount(destination, minlength=comm.size)
+    recv_counts = np.empty_like(counts)
+    comm.Alltoall(counts, recv_counts)
+    received = {}
+    for name, a in fields.items():
+        a = np.ascontiguousarray(a[order])
+        width = int(np.prod(a.shape[1:], dtype=np.int64))
+        out = np.empty((recv_counts.sum(), *a.shape[1:]), dtype=a.dtype)
+        comm.Alltoallv([a, counts * width], [out, recv_counts * width])
+        received[name] = out
+    return received
 
-    def _migrate(self):
-        comm = self.grid.comm
-        if comm.size == 1:
-            return
-        dest = self.grid.owner[self.cell]
-        order = np.argsort(dest, kind="stable")
-        counts = np.bincount(dest, minlength=comm.size)
-        recv_counts = np.empty_like(counts)
-        comm.Alltoall(counts, recv_counts)
-        received = {}
-        for name, a in self.fields.items():
-            a = np.ascontiguousarray(a[order])
-            width = int(np.prod(a.shape[1:], dtype=np.int64))
-            out = np.empty((recv_counts.sum(), *a.shape[1:]), dtype=a.dtype)
-            comm.Alltoallv([a, counts * width], [out, recv_counts * width])
-            received[name] = out
-        self.fields = received
+
+def outside_or_blocked(grid: Grid, x: np.ndarray) -> np.ndarray:
+    """Mask of the points outside the grid or inside an obstacle cell."""
+    gone = grid.outside(x)
+    if grid.blocked.any():
+        inside = np.flatnonzero(~gone)
+        cells, _ = grid.locate(x[inside])
+        gone[inside[grid.blocked[cells]]] = True
+    return gone
+
+
+def raise_if_any_gone(grid: Grid, x: np.ndarray, ids: np.ndarray, gone: np.ndarray):
+    """Raise :class:`ParticleOutsideGridError` on all ranks if any rank has a particle ``gone``,
+    naming the first one and where it went."""
+    comm = grid.comm
+    if comm.allreduce(int(gone.sum())) == 0:
+        return
+    message = None
+    if np.any(gone):
+        k = np.flatnonzero(gone)
+        y = x[k[0]]
+        try:
+            cell = grid.locate(y[None], ids=ids[k[:1]])[0][0]
+            message = (f"particle {ids[k[0]]} at ({y[0]:.6g}, {y[1]:.6g}) entered the obstacle "
+                       f"cell (column {cell % grid.nx}, row {cell // grid.nx})")
+        except ParticleOutsideGridError as outside:
+            message = str(outside)
+    first = next(m for m in comm.allgather(message) if m is not None)
+    total = comm.allreduce(int(gone.sum()))
+    raise ParticleOutsideGridError(first + (f" ({total} particles in all)" if total > 1 else ""))
