@@ -324,6 +324,69 @@ def _constant_array(constants: Mapping, names: list[str]) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 # Particle quadrature
 # --------------------------------------------------------------------------------------
+class _Coefficients:
+    """A compiled form's coefficients in its kernel's order, packed per particle: particle fields
+    as they are, grid functions as their jets at the particle (values and derivatives)."""
+
+    def __init__(self, coefficients, used, grid_functions, jet_cell, shapes):
+        self.coefficients, self.used, self.grid_functions = coefficients, used, grid_functions
+        self.jet_cell, self.shapes = jet_cell, shapes
+
+    def pack(self, particles, phi, lfun) -> np.ndarray:
+        """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
+        n = len(particles)
+        blocks = []
+        for coefficient in self.coefficients:
+            kind, name = self.used[coefficient]
+            if kind == "particle":
+                blocks.append(particles[name].reshape(n, int(np.prod(particles[name].shape[1:], dtype=int))))
+            else:
+                gf = self.grid_functions[name]
+                jets = np.empty((n, phi.shape[1], gf.space.bs))
+                assembly.jets_at_particles(phi, lfun, gf.values, jets)
+                index = self.jet_cell.dof_index(gf.space.fields)  # [C, a] -> element dof
+                block = np.empty((n, index.size))
+                block[:, index.T.ravel()] = jets.reshape(n, index.size)
+                blocks.append(block)
+        if not blocks:
+            return np.zeros((n, 1))
+        return np.ascontiguousarray(np.concatenate(blocks, axis=1))
+
+    def nodal_slots(self):
+        """For lumped integrals: the grid functions' coefficients side by side, and where
+        their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
+        columns, slot_pos, slot_col, zero_pos = [], [], [], []
+        offset = column = 0
+        for coefficient in self.coefficients:
+            kind, name = self.used[coefficient]
+            if kind == "particle":
+                offset += int(np.prod(self.shapes[name], dtype=int))
+                continue
+            gf = self.grid_functions[name]
+            index = self.jet_cell.dof_index(gf.space.fields)  # [C, a]
+            slot_pos.extend(offset + index[:, 0])
+            slot_col.extend(column + np.arange(gf.space.bs))
+            zero_pos.extend(offset + index[:, 1:].ravel())
+            columns.append(gf.values)
+            offset += index.size
+            column += gf.space.bs
+        G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
+        as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
+        return G, as_int(slot_pos), as_int(slot_col), as_int(zero_pos)
+
+    def particle_slots(self) -> np.ndarray:
+        """Positions of the particle fields in the packed coefficients."""
+        slots, offset = [], 0
+        for coefficient in self.coefficients:
+            kind, name = self.used[coefficient]
+            size = (int(np.prod(self.shapes[name], dtype=int)) if kind == "particle"
+                    else self.jet_cell.dof_index(self.grid_functions[name].space.fields).size)
+            if kind == "particle":
+                slots.extend(range(offset, offset + size))
+            offset += size
+        return np.asarray(slots, dtype=np.int64)
+
+
 class ParticleForm:
     """A UFL form integrated with the particles as quadrature points, compiled once.
 
@@ -384,7 +447,7 @@ class ParticleForm:
             address = int(_ffi.cast("intptr_t", ufcx.form_integrals[i].tabulate_tensor_float64))
             self._kernels[ufcx.form_integral_ids[i]] = _KERNEL_TYPE(address)
         original = form.coefficients()
-        self._coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
+        coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
         lumped = [i for i in expanded.integrals() if i.subdomain_id() in (_LUMPED, (_LUMPED,))]
         lumped_grid = {c for i in lumped for c in ufl.algorithms.extract_coefficients(i.integrand())
                        if symbols.used.get(c, ("",))[0] == "grid"}
@@ -392,66 +455,12 @@ class ParticleForm:
         self._lumped_affine = _affine_in_particle_fields(lumped, symbols)
         self._nodal_sums = None  # per-function weights and weighted particle fields, made once
         self._perm = target.jet_cell.dof_index(space.fields)
-        self._jet_cell = target.jet_cell
-
-    # -- coefficient packing ---------------------------------------------------------
-    def _pack(self, particles, phi, lfun) -> np.ndarray:
-        """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
-        n = len(particles)
-        blocks = []
-        for coefficient in self._coefficients:
-            kind, name = self.symbols.used[coefficient]
-            if kind == "particle":
-                blocks.append(particles[name].reshape(n, int(np.prod(particles[name].shape[1:], dtype=int))))
-            else:
-                gf = self.grid_functions[name]
-                jets = np.empty((n, phi.shape[1], gf.space.bs))
-                assembly.jets_at_particles(phi, lfun, gf.values, jets)
-                index = self._jet_cell.dof_index(gf.space.fields)  # [C, a] -> element dof
-                block = np.empty((n, index.size))
-                block[:, index.T.ravel()] = jets.reshape(n, index.size)
-                blocks.append(block)
-        if not blocks:
-            return np.zeros((n, 1))
-        return np.ascontiguousarray(np.concatenate(blocks, axis=1))
-
-    def _nodal_slots(self):
-        """For lumped integrals: the grid functions' coefficients side by side, and where
-        their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
-        columns, slot_pos, slot_col, zero_pos = [], [], [], []
-        offset = column = 0
-        for coefficient in self._coefficients:
-            kind, name = self.symbols.used[coefficient]
-            if kind == "particle":
-                offset += int(np.prod(self.particle_shape(name), dtype=int))
-                continue
-            gf = self.grid_functions[name]
-            index = self._jet_cell.dof_index(gf.space.fields)  # [C, a]
-            slot_pos.extend(offset + index[:, 0])
-            slot_col.extend(column + np.arange(gf.space.bs))
-            zero_pos.extend(offset + index[:, 1:].ravel())
-            columns.append(gf.values)
-            offset += index.size
-            column += gf.space.bs
-        G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
-        as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
-        return G, as_int(slot_pos), as_int(slot_col), as_int(zero_pos)
-
-    def _particle_slots(self) -> np.ndarray:
-        """Positions of the particle fields in the packed coefficients."""
-        slots, offset = [], 0
-        for coefficient in self._coefficients:
-            kind, name = self.symbols.used[coefficient]
-            size = (int(np.prod(self.particle_shape(name), dtype=int)) if kind == "particle"
-                    else self._jet_cell.dof_index(self.grid_functions[name].space.fields).size)
-            if kind == "particle":
-                slots.extend(range(offset, offset + size))
-            offset += size
-        return np.asarray(slots, dtype=np.int64)
+        self._packing = _Coefficients(coefficients, symbols.used, self.grid_functions, target.jet_cell,
+                                      {n: tuple(v) for n, v in symbols._particle_shapes.items()})
 
     def _function_sums(self, phi, lfun, weight, coeffs) -> np.ndarray:
         """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks."""
-        slots = self._particle_slots()
+        slots = self._packing.particle_slots()
         if self._nodal_sums is None:
             self._nodal_sums = dolfinx.la.vector(self.space.numbering.index_map, 1 + len(slots))
         sums = self._nodal_sums
@@ -469,7 +478,7 @@ class ParticleForm:
         phi, lfun = self.space.tabulate_particles(particles, self.order)
         phi = np.ascontiguousarray(phi)
         weight = particles["volume"] / self.space.grid.h**2
-        coeffs = self._pack(particles, phi, lfun)
+        coeffs = self._packing.pack(particles, phi, lfun)
         consts = _constant_array(self.constants, self._constant_names)
         return phi, lfun, weight, coeffs, consts
 
@@ -494,12 +503,12 @@ class ParticleForm:
             assembly.assemble_matrix_nodal_affine(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
                 self._function_sums(phi, lfun, weight, coeffs), self.space.numbering.num_owned,
-                self._particle_slots(), coeffs.shape[1], consts, self._perm, h, self._nodal_slots(),
+                self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h, self._packing.nodal_slots(),
             )
         elif _LUMPED in self._kernels:
             assembly.assemble_matrix_lumped(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
-                np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, self._nodal_slots(),
+                np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(),
                 self._lumped_per_function,
             )
         return target.finalize()
@@ -520,13 +529,13 @@ class ParticleForm:
         if _LUMPED in self._kernels and self._lumped_affine:
             assembly.assemble_vector_nodal_affine(
                 self._kernels[_LUMPED], b.array, self._function_sums(phi, lfun, weight, coeffs),
-                self.space.numbering.num_owned, self._particle_slots(), coeffs.shape[1], consts, self._perm, h,
-                self._nodal_slots(),
+                self.space.numbering.num_owned, self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h,
+                self._packing.nodal_slots(),
             )
         elif _LUMPED in self._kernels:
             assembly.assemble_vector_lumped(
                 self._kernels[_LUMPED], b.array, particles.x, weight, np.ascontiguousarray(phi[:, 0, :]),
-                lfun, coeffs, consts, self._perm, h, self._nodal_slots(), self._lumped_per_function,
+                lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(), self._lumped_per_function,
             )
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return b
