@@ -12,7 +12,8 @@ Four cases, each run with both transfers (``fempm.cases.vortices.VARIANTS``):
 
 The results go to ``docs/verification/transfers.json`` and, through the template
 ``templates/verification-transfers.md``, to the transfers section of ``docs/verification.md``
-(the page's other sections, written by ``report.py``, are kept as they are)::
+(the page's other sections, written by ``report.py``, are kept as they are; each case's entry says
+which command made it, so that cases may be rerun one at a time)::
 
     python benchmarks/transfer_study.py                 # the short studies (about 10 minutes)
     python benchmarks/transfer_study.py --full          # t = 3 Gresho, 10 s column, all steps (hours)
@@ -75,32 +76,38 @@ def _outcome(r: dict) -> str:
     return "completed" if r["status"] == "completed" else f"stopped at {r['t']:.3g}: {r['cause']}"
 
 
+def _made(case: dict) -> str:
+    return (f"`{case['command']}` on {case['date']} UTC, fempm {case['commit']}, {case['machine']} shared with other "
+            f"work ({case['seconds']:.0f} s).")
+
+
 def section(data: dict) -> str:
-    """The transfers section of ``docs/verification.md`` from the stored results."""
-    res = data["results"]
+    """The transfers section of ``docs/verification.md`` from the stored results (one entry per case:
+    its rows and how they were made)."""
+    rows = {case: entry["rows"] for case, entry in data.items()}
     pct = lambda x, d=2: f"{100 * x:.{d}f} %"  # noqa: E731
     tables = {
         "dambreak": pages.table(["transfer", "cells", "dt (s)", "front vs interFoam 160²", "wall (s)", "outcome"], [
             [r["variant"], r["cells"], f"{r['dt']:g}", pct(r["error"]), f"{r['wall']:.0f}", _outcome(r)]
-            for r in res.get("dambreak", [])]),
+            for r in rows.get("dambreak", [])]),
         "taylor_green": pages.table(["transfer", "ν", "cells", "dt", "numerical dissipation (1/unit time)",
                                      "KE(t)/KE(0) (exact)", "wall (s)", "outcome"], [
             [r["variant"], f"{r['nu']:g}", r["cells"], f"{r['dt']:.3g}", f"{r['numerical']:.2e}",
              f"{r['ke_end']:.5f} ({r['exact_end']:.5f})", f"{r['wall']:.0f}", _outcome(r)]
-            for r in res.get("taylor_green", [])]),
+            for r in rows.get("taylor_green", [])]),
         "gresho": pages.table(["transfer", "cells", "dt", "t", "KE change", "angular momentum change",
                                "u_θ L2 error", "wall (s)", "outcome"], [
             [r["variant"], r["cells"], f"{r['dt']:.3g}", f"{r['t']:g}", f"{100 * r['ke']:+.2f} %",
              f"{100 * r['L']:+.3f} %", pct(r["profile"]), f"{r['wall']:.0f}", _outcome(r)]
-            for r in res.get("gresho", [])]),
+            for r in rows.get("gresho", [])]),
         "column": pages.table(["transfer", "basis", "t (s)", "volume change", "speed at the end (m/s)",
                                "largest speed (m/s)", "wall (s)", "outcome"], [
             [r["variant"], r["basis"], f"{r['t']:g}", f"{100 * r['volume']:+.3f} %", f"{r['speed']:.1e}",
              f"{r['peak']:.1e}", f"{r['wall']:.0f}", _outcome(r)]
-            for r in res.get("column", [])]),
+            for r in rows.get("column", [])]),
     }
-    return pages.fill("verification-transfers.md", marker=MARKER, flags=data["flags"], date=data["date"],
-                      commit=data["commit"], machine=data["machine"], seconds=f"{data['seconds']:.0f}", **tables)
+    made = {f"{case}_made": _made(data[case]) if case in data else "Not run yet." for case in RUNS}
+    return pages.fill("verification-transfers.md", marker=MARKER, **tables, **made)
 
 
 def write_section(page: Path = PAGE, results: Path = RESULTS):
@@ -117,20 +124,18 @@ def main(argv=None) -> int:
     parser.add_argument("--page-only", action="store_true", help="rewrite the section from the stored results")
     args = parser.parse_args(argv)
     if not args.page_only:
-        start = time.perf_counter()
-        stored = json.loads(RESULTS.read_text()) if RESULTS.exists() else {"results": {}}
+        stored = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
         plan = studies(args.full)
         for case in args.case:
-            rows = []
+            start, rows = time.perf_counter(), []
             for run in plan[case]:
                 rows.append(RUNS[case](*run))
                 print(case, json.dumps(rows[-1]), flush=True)
-            stored["results"][case] = rows
-        flags = (" --full" if args.full else "") + ("" if args.case == list(RUNS) else " --case " + " ".join(args.case))
-        stored.update(flags=flags, seconds=time.perf_counter() - start,
-                      **{k: v for k, v in pages.provenance().items() if k != "node"})
-        RESULTS.parent.mkdir(parents=True, exist_ok=True)
-        output.write_json(RESULTS, stored)
+            made = {k: v for k, v in pages.provenance().items() if k != "node"}
+            stored[case] = {"rows": rows, "command": f"python benchmarks/transfer_study.py{' --full' if args.full else ''} "
+                            f"--case {case}", "seconds": time.perf_counter() - start, **made}
+            RESULTS.parent.mkdir(parents=True, exist_ok=True)
+            output.write_json(RESULTS, stored)
     write_section()
     return 0
 
