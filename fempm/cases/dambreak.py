@@ -27,7 +27,7 @@ from mpi4py import MPI
 from fempm import output, references
 from fempm.errors import InputError
 from fempm.explicit import ExplicitScheme, ExplicitSolver
-from fempm.options import TRANSFERS, Physics
+from fempm.options import Physics
 from fempm.scene import Scene, parse_scene
 from fempm.simulation import build_material, check_folder
 
@@ -133,10 +133,7 @@ def add_flags(parser: argparse.ArgumentParser):
     flag("--basis", dest="solver.basis", choices=("bspline", "q1"), help="grid basis (scene: bspline)")
     flag("--walls", choices=("slip", "no-slip"), help="every wall (scene: slip)")
     flag("--viscosity", dest="fluid.viscosity", type=float, metavar="MU", help="Pa s (scene: 1e-3)")
-    flag("--transfer", dest="solver.transfer", choices=TRANSFERS, help="particle-grid transfer (scene: affine-flip)")
     flag("--pic", dest="solver.pic_blend", type=float, metavar="SHARE", help="PIC share per step, 0..1 (scene: 0)")
-    flag("--pic-rate", dest="solver.pic_rate", type=float, metavar="RATE",
-         help="PIC share per second, 1/s: a share RATE dt per step (scene: 100)")
     flag("--forms", dest="solver.forms", type=_forms, metavar="FORMS", help="weak forms: a forms/ name or a .py file")
     flag("--out", dest="output.folder", metavar="DIR", help="output folder")
     flag("--overwrite", action="store_true", help="replace an earlier run's files in the output folder")
