@@ -92,6 +92,12 @@ def test_smoothed_density_of_a_full_grid_is_the_density(comm, Basis):
 A, B0 = np.array([[0.3, -1.2], [0.7, 0.4]]), np.array([0.5, -2.0])  # an affine field A x + b
 
 
+def _affine_case(comm, Basis):
+    """A 10 x 6 grid, a two-component space and particles (3, 1, 4 in the first cells and on)."""
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
+    return grid, fempm.Space(Basis(grid), {"v": 2}), random_particles(grid, [3, 1, 4])
+
+
 def _owned(space, values):
     return values[: space.numbering.num_owned]
 
@@ -148,9 +154,7 @@ def test_apic_moments_by_hand(comm):
 @pytest.mark.parametrize("Basis", BASES)
 def test_affine_p2g_of_an_affine_field_is_exact(comm, Basis):
     """v_p = A x_p + b with C_p = A lands as v_i = A x_i + b on every function with mass."""
-    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
-    space = fempm.Space(Basis(grid), {"v": 2})
-    particles = random_particles(grid, [3, 1, 4])
+    grid, space, particles = _affine_case(comm, Basis)
     particles["velocity"][:] = particles.x @ A.T + B0
     sums = _affine_p2g(space, particles, np.broadcast_to(A, (len(particles), 2, 2)))
     m = sums[:, 0]
@@ -163,9 +167,7 @@ def test_affine_p2g_of_an_affine_field_is_exact(comm, Basis):
 @pytest.mark.parametrize("Basis", BASES)
 def test_affine_g2p_of_an_affine_field_is_exact(comm, Basis, kind):
     """Grid coefficients A x_i + b give v_p = A x_p + b and C_p = A (so P2G o G2P keeps affine fields)."""
-    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
-    space = fempm.Space(Basis(grid), {"v": 2})
-    particles = random_particles(grid, [3, 1, 4])
+    grid, space, particles = _affine_case(comm, Basis)
     f = fempm.GridFunction(space)
     f.values[:] = transfer.function_nodes(space) @ A.T + B0
     v, C = transfer.affine_grid_to_particles(f, particles, kind)
@@ -177,9 +179,7 @@ def test_affine_g2p_of_an_affine_field_is_exact(comm, Basis, kind):
 @pytest.mark.parametrize("Basis", BASES)
 def test_affine_p2g_conserves_momentum_and_angular_momentum(comm, Basis):
     """sum_i m_i v_i = sum_p m_p v_p, and sum_i m_i x_i x v_i = the particles' L with affine parts."""
-    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
-    space = fempm.Space(Basis(grid), {"v": 2})
-    particles = random_particles(grid, [3, 1, 4])
+    grid, space, particles = _affine_case(comm, Basis)
     rng = np.random.default_rng(3 + comm.rank)
     particles["velocity"][:] = rng.standard_normal((len(particles), 2))
     C = rng.standard_normal((len(particles), 2, 2))
@@ -200,9 +200,7 @@ def test_affine_g2p_conserves_momentum_and_apic_angular_momentum(comm, Basis, ki
     """G2P of any grid field: sum_p m_p v_p = sum_i m_i v_i (both); the angular momentum with the
     affine parts equals the grid's for APIC (and TPIC on Q1, where the two coincide), not for TPIC
     on B-splines (its C_p is not B_p D_p^-1)."""
-    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
-    space = fempm.Space(Basis(grid), {"v": 2})
-    particles = random_particles(grid, [3, 1, 4])
+    grid, space, particles = _affine_case(comm, Basis)
     f = fempm.GridFunction(space)
     f.values[:] = np.random.default_rng(5).standard_normal((space.basis.num_functions, 2))[
         space.numbering.local_functions]
