@@ -59,8 +59,8 @@ def dambreak_front(variant: str, cells: int = 40, dt: float = 1e-3, end: float =
 def studies(full: bool) -> dict:
     """Which runs each case makes (short or full)."""
     return {
-        "dambreak": [(v, 40, dt) for v in vortices.VARIANTS for dt in (1e-3, 5e-4, 2.5e-4)] + [("affine-FLIP", 80, 1e-3)]
-        + ([("FLIP/PIC", 80, 1e-3)] if full else []),
+        "dambreak": [(v, 40, dt) for v in vortices.VARIANTS for dt in (1e-3, 5e-4, 2.5e-4)]
+        + [("affine-FLIP", 80, 1e-3)] + ([("FLIP/PIC", 80, 1e-3)] if full else []),
         "taylor_green": [(v, n, c / n, nu) for v in vortices.VARIANTS for nu in (1e-6, 1e-2) for n in (32, 64)
                          for c in (0.4, 0.2, 0.1) if full or nu == 1e-6],
         "gresho": [(v, n, 0.4 / n, 3.0 if full else 0.5) for v in vortices.VARIANTS for n in (32, 64)],
@@ -132,8 +132,8 @@ def main(argv=None) -> int:
                 rows.append(RUNS[case](*run))
                 print(case, json.dumps(rows[-1]), flush=True)
             made = {k: v for k, v in pages.provenance().items() if k != "node"}
-            stored[case] = {"rows": rows, "command": f"python benchmarks/transfer_study.py{' --full' if args.full else ''} "
-                            f"--case {case}", "seconds": time.perf_counter() - start, **made}
+            command = f"python benchmarks/transfer_study.py{' --full' if args.full else ''} --case {case}"
+            stored[case] = {"rows": rows, "command": command, "seconds": time.perf_counter() - start, **made}
             RESULTS.parent.mkdir(parents=True, exist_ok=True)
             output.write_json(RESULTS, stored)
     write_section()

@@ -136,7 +136,7 @@ def test_cavity_short_run(tmp_path):
     assert [r["method"] for r in runs] == ["FEM-only", "MPM"]
     print([(r["extra"]["error_u"], r["extra"]["error_v"]) for r in runs])
     assert runs[0]["error"] < 0.181  # FEM-only, measured 0.1793 (u; v 0.1522)
-    assert runs[1]["error"] < 0.16  # MPM, measured 0.1569 (v; u 0.1268); FLIP/PIC 0.2066 (u; v 0.1811)
+    assert runs[1]["error"] < 0.209  # MPM, measured 0.2066 (u; v 0.1811); FLIP/PIC as the case's transfer
     errors = np.genfromtxt(tmp_path / "errors.csv", delimiter=",", skip_header=1, names=True, dtype=None)
     np.testing.assert_allclose(errors["error_u"], [r["extra"]["error_u"] for r in runs])
 
