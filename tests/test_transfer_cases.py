@@ -21,10 +21,10 @@ def test_taylor_green_dissipation_of_affine_flip_falls_with_dt_and_flip_pic_grow
     fine = vortices.taylor_green("affine-FLIP", 32, 0.003125, 1e-6)
     print(coarse["numerical"], fine["numerical"])
     assert 0 < coarse["numerical"] < 0.0085  # measured 7.19e-3 per unit time
-    assert 0 < fine["numerical"] < 0.6 * coarse["numerical"]  # measured 3.4e-3 (spike)
+    assert 0 < fine["numerical"] < 0.6 * coarse["numerical"]  # measured 3.35e-3
     old = vortices.taylor_green("FLIP/PIC", 32, 0.003125, 1e-6)
     print(old["numerical"])
-    assert old["numerical"] > 0.25  # measured 0.31 (8.3e-2 at dt 0.0125)
+    assert old["numerical"] > 0.25  # measured 0.307 (8.3e-2 at dt 0.0125)
 
 
 def test_gresho_vortex_short():
@@ -45,8 +45,8 @@ def test_column_stays_at_rest_with_affine_flip():
     r = column.rest("affine-FLIP", 0.5)
     print(r)
     assert r["status"] == "completed"
-    assert abs(r["volume"]) < 0.002  # measured: see the report
-    assert r["speed"] < 1e-3
+    assert abs(r["volume"]) < 0.002  # measured -1.5e-4
+    assert r["speed"] < 6e-4  # measured 4.65e-4 m/s (largest over the run 1.07e-3, while settling)
 
 
 @pytest.mark.full
