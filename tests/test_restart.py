@@ -225,6 +225,11 @@ EDITS = [
     ("a volume negative", _with_array("volume", _volume_negative), r"particle field 'volume' must be positive"),
     ("a position NaN", _with_array("x", _position_nan), r"particle field 'x' holds values that are not finite"),
     ("a field missing", _drop("pressure"), r"particle fields \['pressure'\] are missing"),
+    ("affine part flat", _with_array("affine_velocity", lambda c: c.reshape(len(c), 4)),
+     r"particle field 'affine_velocity' has shape \(800, 4\), expected \(800, 2, 2\)"),
+    ("affine part missing", _drop("affine_acceleration"), r"particle fields \['affine_acceleration'\] are missing"),
+    ("affine part NaN", _with_array("affine_velocity", lambda c: np.full_like(c, np.nan)),
+     r"particle field 'affine_velocity' holds values that are not finite"),
     ("a field extra", _with_array("colour", lambda _: np.zeros(800)),
      r"particle fields \['colour'\] are not fields of this scene's particles"),
 ]
