@@ -225,8 +225,10 @@ def affine_particles_to_grid(space: Space, particles, values, gradients, name: s
     particles' ``values`` (momentum is conserved), and an affine field ``q(x)`` given with its
     gradient lands exactly as ``Q_i = q(x_i) sum_p N_i(x_p)``.
     """
-    values = np.ascontiguousarray(np.asarray(values, dtype=np.float64).reshape(len(particles), -1))
-    gradients = np.ascontiguousarray(np.asarray(gradients, dtype=np.float64).reshape(len(particles), -1, 2))
+    values = np.asarray(values, dtype=np.float64)
+    values = np.ascontiguousarray(values.reshape(len(particles), int(np.prod(values.shape[1:], dtype=int))))
+    gradients = np.ascontiguousarray(np.asarray(gradients, dtype=np.float64).reshape(len(particles), -1, 2)
+                                     if len(particles) else np.zeros((0, values.shape[1], 2)))
     if values.shape[1] + counts != space.bs or gradients.shape[1] != values.shape[1]:
         raise ValueError(f"affine P2G: {values.shape[1]} values and {gradients.shape[1]} gradients for a space "
                          f"of {space.bs} components")

@@ -272,3 +272,18 @@ def test_pic_share():
     assert transfer.pic_share("affine-flip", 0.0, 100.0, 1e-3) == pytest.approx(0.1)
     assert transfer.pic_share("flip", 0.1, 0.0, 1e-4) == pytest.approx(0.1)
     assert transfer.pic_share("flip", 0.5, 100.0, 1e-2) == 1.0
+
+
+@pytest.mark.parametrize("kind", transfer.TRANSFERS)
+def test_the_particle_state_of_a_rank_without_particles(comm, kind):
+    """A rank may hold no particles (the water on the other rank): P2G gives zeros, G2P nothing."""
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
+    basis = fempm.BSpline2(grid)
+    particles = fempm.Particles(grid)
+    transfer.add_affine_fields(particles, kind)
+    p2g = transfer.project_state(particles, kind, fempm.GridFunction(fempm.Space(basis, {"m": 1, "mv": 2, "ma": 2,
+                                                                                       "count": 1})))
+    assert not p2g.values.any()
+    g2p = fempm.GridFunction(fempm.Space(basis, {"dv": 2, "da": 2, "v": 2, "a": 2}))
+    transfer.update_state(g2p, transfer.grid_jets_to_particles(g2p, particles, order=1), particles, kind, 0.1)
+    assert particles["velocity"].shape == (0, 2)
