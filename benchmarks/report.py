@@ -23,6 +23,7 @@ from pathlib import Path
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 import pages
 import studies
+import transfer_study
 from fempm import output
 from fempm.verification import Measurement, rates
 
@@ -134,6 +135,8 @@ def write_page(doc: Path, results: dict[str, list[Measurement]], full: bool, sec
                                    figures=figures.name).rstrip("\n"))
     pages.write(doc, pages.fill("verification.md", flags=" --full" if full else "", seconds=f"{seconds:.0f}",
                                 cases="\n\n".join(sections), **pages.provenance()))
+    if transfer_study.RESULTS.exists():  # the transfers' section, from its own (long) study's stored results
+        transfer_study.write_section(doc)
 
 
 def main(argv=None) -> int:

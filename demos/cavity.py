@@ -87,7 +87,7 @@ parser.add_argument("--end-time", type=float, default=cavity.END_TIME, help="sim
 parser.add_argument("--window", type=float, default=cavity.WINDOW, help="the profiles' mean is over the last WINDOW")
 parser.add_argument("--method", choices=("both", "mpm", "fem"), default="both", help="which methods run")
 parser.add_argument("--alpha", type=float, default=Scheme.alpha, help="MPM volume correction, 0..1")
-parser.add_argument("--pic", type=float, default=Scheme.pic_blend, help="MPM PIC share, 0..1")
+parser.add_argument("--pic", type=float, default=cavity.PIC, help="MPM PIC share per step, 0..1")
 parser.add_argument("--out", type=Path, default=Path("results/cavity"), help="output folder")
 parser.add_argument("--quiet", action="store_true", help="no progress line")
 args = parser.parse_args()

@@ -5,7 +5,7 @@ One step, as named phases::
     project   P2G: grid v_n, a_n (mass-weighted), smoothed density (eq. 2); which dofs are free
     solve     Newton on R(U) = 0 of forms/incompressible.py at the particles (one iteration
               when R is affine in U), PETSc (MUMPS LU) on the free dofs
-    update    G2P: velocity and acceleration (FLIP/PIC), x += du, pressure; safeguards
+    update    G2P: velocity and acceleration (Scheme.transfer), x += du, pressure; safeguards
     relocate  particles to their new cells and ranks
 
 The parts it is made of: :class:`~fempm.system.GridSystem` (unknowns, grid fields, walls, free
@@ -61,6 +61,7 @@ class ImplicitSolver(Stepper):
         self.physics, self.scheme, self.controls = physics, scheme, controls
         if "pressure" not in particles.fields:
             particles.add_field("pressure")
+        transfer.add_affine_fields(particles, scheme.transfer)
         self.system = GridSystem(basis, physics, scheme, controls, convection=0.0, timings=self.timings)
         self.walls, self.velocity, self.pressure = self.system.walls, self.system.velocity, self.system.pressure
         self.region = MatrixRegion(self.system.space, controls.matrix_region, particles)
@@ -90,7 +91,8 @@ class ImplicitSolver(Stepper):
     def project(self) -> np.ndarray:
         """P2G: grid velocity and acceleration, smoothed density; returns the free dofs.
 
-        One scatter carries mass, momentum, mass-weighted acceleration and particle counts:
+        One scatter carries mass, momentum, mass-weighted acceleration and particle counts (with
+        the particles' affine parts for an affine transfer, :func:`~fempm.transfer.project_state`):
         ``v_i = (m v)_i / m_i``, ``a_i = (m a)_i / m_i``, ``rho~_i = m_i / int N_i dx`` (eq. 2).
         Functions whose support holds less than ``min_support_fraction`` of material are left
         out of the solve and held at rest (v_n = a_n = 0); the pressure also where there is less
@@ -100,10 +102,7 @@ class ImplicitSolver(Stepper):
         """
         self.region.follow(self.particles)
         p, s, c = self.particles, self.system, self.controls
-        mass = p["mass"][:, None]
-        p2g = transfer.particles_to_grid(self._p2g.space, p, np.hstack([mass, mass * p["velocity"],
-                                                                         mass * p["acceleration"]]),
-                                         counts=True, out=self._p2g)
+        p2g = transfer.project_state(p, self.scheme.transfer, self._p2g)
         m = p2g.field("m")
         rho = s.fields["smoothed_density"].values
         rho[:] = transfer.smoothed_density(m, self._integrals[:, None])
@@ -121,7 +120,8 @@ class ImplicitSolver(Stepper):
         return s.free.select(keep.ravel())
 
     def update(self):
-        """G2P: velocity and acceleration (FLIP/PIC blend), ``x += du``, pressure; then the safeguards.
+        """G2P: velocity and acceleration (:func:`~fempm.transfer.update_state`), ``x += du``, pressure;
+        then the safeguards.
 
         FLIP adds the grid's change ``v_{n+1} - v_n`` to the particle velocity (likewise the
         acceleration), ``v_n`` as the step used it: on the held wall dofs both are the wall's, so
@@ -134,12 +134,10 @@ class ImplicitSolver(Stepper):
         g.field("da")[:] = a_new - s.fields["grid_acceleration"].values
         g.field("v")[:], g.field("a")[:], g.field("p")[:] = v_new, a_new, s.U.field("p")
         jets = transfer.grid_jets_to_particles(g, p, order=1)
-        at = {name: jets[:, 0, g.space.field_slice(name)] for name in g.space.fields}
-        k = self.scheme.pic_blend
-        p["velocity"][:] = transfer.flip(p["velocity"], at["dv"], at["v"], k)
-        p["acceleration"][:] = transfer.flip(p["acceleration"], at["da"], at["a"], k)
-        p["pressure"][:] = at["p"][:, 0]
-        p.fields["x"] = s.walls.keep_inside(p.x + at["du"])
+        sc = self.scheme
+        transfer.update_state(g, jets, p, sc.transfer, transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt))
+        p["pressure"][:] = jets[:, 0, g.space.field_slice("p")][:, 0]
+        p.fields["x"] = s.walls.keep_inside(p.x + jets[:, 0, g.space.field_slice("du")])
         grad_v = transfer.gradient(jets[:, :, g.space.field_slice("v")], self.grid.h)
         divergence = np.abs(grad_v[:, 0, 0] + grad_v[:, 1, 1]).max(initial=0.0)
         self.max_divergence = self.grid.comm.allreduce(float(divergence), op=MPI.MAX)

@@ -16,11 +16,13 @@ import numpy as np
 
 from fempm.errors import InputError
 
-__all__ = ["Controls", "Physics", "SIDES", "Scheme", "WALLS"]
+__all__ = ["Controls", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
 
 SIDES = ("left", "right", "bottom", "top")
 #: The conditions a side may have (see :class:`Physics`).
 WALLS = ("slip", "no-slip", "outflow", "open")
+#: The particle-grid transfers (see :class:`Scheme` and :mod:`fempm.transfer`).
+TRANSFERS = ("flip", "apic", "tpic", "affine-flip")
 #: ``Controls.matrix_region = "auto"`` keeps rows only near the water above this many cells.
 FLUID_REGION_CELLS = 100_000
 
@@ -93,7 +95,19 @@ class Scheme:
         beta, gamma: Newmark parameters (1/4, 1/2: the trapezoidal rule).
         alpha: volume-correction factor of method.md eq. (3), 0 <= alpha <= 1 (0: left out).
         pspg: PSPG stabilisation (method.md: without it the run diverges).
-        pic_blend: share of PIC in the FLIP update of the particles, 0 (FLIP) to 1 (PIC).
+        transfer: how velocity and acceleration go between particles and grid, one of
+            :data:`TRANSFERS` (:mod:`fempm.transfer`): ``flip`` (FLIP increments blended with PIC,
+            the seed's), ``apic`` (Jiang et al. 2015), ``tpic`` (Nakamura et al. 2023) or
+            ``affine-flip`` (APIC's affine parts, FLIP increments blended with PIC for the values;
+            Fei et al. 2021). The affine kinds give the particles the fields ``affine_velocity``
+            and ``affine_acceleration``.
+        pic_blend: PIC share per step of ``flip`` and ``affine-flip``, 0 (FLIP) to 1 (PIC); it
+            damps per unit time as 1/dt, more as the step falls.
+        pic_rate: PIC share per unit time (1/s) of ``flip`` and ``affine-flip``: the share per
+            step is ``min(1, pic_blend + pic_rate dt)``, a damping that does not grow as dt falls
+            and that the affine parts make vanish fast as h falls. Without any PIC share, FLIP
+            increments let a column at rest grow a grid-scale velocity mode; on Q1 a share of
+            100/s does not hold it either (300/s or ``apic`` does: ``tests/test_implicit.py``).
         forms: the weak forms, a file of ``forms/`` by bare name or a path to a ``.py`` file.
     """
 
@@ -103,7 +117,9 @@ class Scheme:
     gamma: float = 0.5
     alpha: float = 0.1
     pspg: bool = True
-    pic_blend: float = 0.1
+    transfer: str = "affine-flip"
+    pic_blend: float = 0.0
+    pic_rate: float = 100.0
     forms: str | Path = "incompressible"
 
     def check(self):
@@ -118,6 +134,10 @@ class Scheme:
             raise InputError(f"alpha (volume correction) must be in [0, 1], got {self.alpha}")
         if not 0 <= self.pic_blend <= 1:
             raise InputError(f"pic_blend must be in [0, 1], got {self.pic_blend}")
+        if self.transfer not in TRANSFERS:
+            raise InputError(f"transfer must be one of {TRANSFERS}, got {self.transfer!r}")
+        if not (np.isfinite(self.pic_rate) and self.pic_rate >= 0):
+            raise InputError(f"pic_rate must be a finite number >= 0 (1/s), got {self.pic_rate}")
 
 
 @dataclass

@@ -35,7 +35,7 @@ from fempm.errors import InputError
 from fempm.expressions import Expression
 from fempm.formsfile import forms_path, shipped_forms
 from fempm.grid import cell_counts, square_cell_size
-from fempm.options import FLUID_REGION_CELLS, Scheme
+from fempm.options import FLUID_REGION_CELLS, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
 from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, folder_name, forms_name, fraction,
                           in_range, key, non_negative, petsc_table, point, points, positive, range_pair,
@@ -165,7 +165,9 @@ class Solver:
     linear: str = key(choice("direct", "iterative"), "direct")
     pspg: bool = key(boolean, True)
     volume_correction: float = key(fraction, Scheme.alpha)
+    transfer: str = key(choice(*TRANSFERS), Scheme.transfer)
     pic_blend: float = key(fraction, Scheme.pic_blend)
+    pic_rate: float = key(non_negative, Scheme.pic_rate, unit="1/s")
     newmark_beta: float = key(in_range(0, 0.5), Scheme.beta)
     newmark_gamma: float = key(in_range(0, 1), Scheme.gamma)
     pressure_limit: float | None = key(positive, None, unit="Pa")

@@ -10,6 +10,14 @@ With ``N_i`` the basis functions and ``p`` the particles:
 * The smoothed density of method.md eq. (2):
   ``rho~_i = sum_p W_i(x_p) m_p`` with ``W_i = N_i / int N_i dx``.
 * The FLIP/PIC update of a particle quantity from the grid's change and new value.
+* Affine transfers (APIC, Jiang et al. 2015; TPIC, Nakamura et al. 2023): a particle
+  carries with its value ``q_p`` an affine part ``C_p`` (a gradient) and P2G spreads the
+  affine field, ``Q_i = sum_p w_p N_i(x_p) (q_p + C_p (x_i - x_p))``; ``x_i`` is the
+  function's node (:func:`function_nodes`). G2P gives ``C_p = B_p D_p^-1`` (APIC) with
+  ``B_p = sum_i f_i N_i(x_p) (x_i - x_p)^T`` and ``D_p = sum_i N_i(x_p) (x_i - x_p)(x_i - x_p)^T``,
+  or the grid gradient ``grad f(x_p)`` (TPIC).
+* The particle state of the implicit step (:func:`project_state`, :func:`update_state`): one
+  of :data:`TRANSFERS`, with a PIC share per step that may grow with the step (:func:`pic_share`).
 
 Sums over particles on several ranks meet at the owners of the functions.
 """
@@ -21,9 +29,22 @@ import numpy as np
 from mpi4py import MPI
 
 from fempm.assembly import jets_at_particles
+from fempm.options import TRANSFERS
 from fempm.space import GridFunction, Space
 
 __all__ = [
+    "AFFINE_FIELDS",
+    "AFFINE_KINDS",
+    "TRANSFERS",
+    "add_affine_fields",
+    "affine_grid_to_particles",
+    "affine_moments",
+    "affine_particles_to_grid",
+    "angular_momentum",
+    "function_nodes",
+    "pic_share",
+    "project_state",
+    "update_state",
     "density_normalisation",
     "flip",
     "gradient",
@@ -143,3 +164,225 @@ def grid_gradient_to_particles(gf: GridFunction, particles) -> np.ndarray:
 def gradient(jets: np.ndarray, h: float) -> np.ndarray:
     """Physical gradients ``(n, bs, 2)`` from jets of order >= 1 (:func:`grid_jets_to_particles`)."""
     return np.transpose(jets[:, 1:3, :], (0, 2, 1)) / h
+
+
+# -- affine transfers --------------------------------------------------------------------------------
+AFFINE_KINDS = ("apic", "tpic")
+
+
+def function_nodes(space: Space) -> np.ndarray:
+    """The node ``x_i`` of every local function (owned, then ghosts), shape ``(n, 2)``.
+
+    Both bases are clamped B-splines on the grid's uniform knots (Q1 of degree 1), and the
+    node is the function's Greville abscissa, the mean of its ``k`` inner knots: the grid
+    nodes for Q1; the cell centres and the walls for the quadratic B-splines. With these,
+    ``sum_i N_i(x) x_i = x`` everywhere (the bases reproduce linear fields with these
+    coefficients), which makes affine P2G and G2P exact on affine fields and
+    ``sum_i N_i(x_p) (x_i - x_p) = 0``, on which the conservation of momentum rests.
+    """
+    basis = space.basis
+    cached = getattr(basis, "_function_nodes", None)
+    if cached is None:
+        grid, k = basis.grid, basis.degree
+
+        def greville(n):  # the mean of knots i+1 .. i+k of function i
+            knots = np.concatenate([np.zeros(k), np.arange(n + 1.0), np.full(k, float(n))])
+            return np.lib.stride_tricks.sliding_window_view(knots[1:], k).mean(axis=1)[: n + k]
+
+        gx, gy = greville(grid.nx), greville(grid.ny)
+        f = np.arange(basis.num_functions)
+        cached = np.column_stack([grid.lower[0] + grid.h * gx[f % basis.nfx],
+                                  grid.lower[1] + grid.h * gy[f // basis.nfx]])
+        basis._function_nodes = cached
+    return np.ascontiguousarray(cached[space.numbering.local_functions])
+
+
+@numba.njit(cache=True)
+def _scatter_affine(phi0, lfun, nodes, x, values, gradients, out, counts):
+    """``out[f, c] += phi0[p, l] (values[p, c] + gradients[p, c] . (nodes[f] - x[p]))`` with
+    ``f = lfun[p, l]``; with ``counts`` also ``out[f, -1] += 1``."""
+    nc = values.shape[1]
+    for p in range(phi0.shape[0]):
+        for l in range(phi0.shape[1]):
+            f = lfun[p, l]
+            rx, ry = nodes[f, 0] - x[p, 0], nodes[f, 1] - x[p, 1]
+            w = phi0[p, l]
+            for c in range(nc):
+                out[f, c] += w * (values[p, c] + gradients[p, c, 0] * rx + gradients[p, c, 1] * ry)
+            if counts:
+                out[f, nc] += 1.0
+
+
+def affine_particles_to_grid(space: Space, particles, values, gradients, name: str = "p2g", counts: bool = False,
+                             out: GridFunction | None = None) -> GridFunction:
+    """Affine P2G: ``Q_i = sum_p N_i(x_p) (values_p + gradients_p (x_i - x_p))``.
+
+    ``values`` ``(n, nc)``, ``gradients`` ``(n, nc, 2)`` with ``[p, c, d]`` the derivative of
+    component ``c`` along ``x_d`` (zero for a component without an affine part, e.g. the mass);
+    ``x_i`` are the :func:`function_nodes`. Weight by the mass yourself (``m_p v_p``,
+    ``m_p C_p``). ``counts`` and ``out`` as in :func:`particles_to_grid`. Since
+    ``sum_i N_i(x_p) (x_i - x_p) = 0`` the sum over the grid of ``Q_i`` is that of the
+    particles' ``values`` (momentum is conserved), and an affine field ``q(x)`` given with its
+    gradient lands exactly as ``Q_i = q(x_i) sum_p N_i(x_p)``.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    values = np.ascontiguousarray(values.reshape(len(particles), int(np.prod(values.shape[1:], dtype=int))))
+    gradients = np.ascontiguousarray(np.asarray(gradients, dtype=np.float64).reshape(len(particles), -1, 2)
+                                     if len(particles) else np.zeros((0, values.shape[1], 2)))
+    if values.shape[1] + counts != space.bs or gradients.shape[1] != values.shape[1]:
+        raise ValueError(f"affine P2G: {values.shape[1]} values and {gradients.shape[1]} gradients for a space "
+                         f"of {space.bs} components")
+    phi, lfun = space.tabulate_particles(particles, order=0)
+    out = out if out is not None else GridFunction(space, name)
+    out.values[:] = 0.0
+    _scatter_affine(np.ascontiguousarray(phi[:, 0, :]), lfun, function_nodes(space), np.ascontiguousarray(particles.x),
+                    values, gradients, out.values, counts)
+    out.scatter_reverse_add()
+    out.scatter_forward()
+    return out
+
+
+@numba.njit(cache=True)
+def _apic_moments(phi0, lfun, nodes, x, grid_values, B, D):
+    """``B[p, c] = sum_l phi0[p, l] f[c] (x_f - x_p)`` and ``D[p] = sum_l phi0[p, l] (x_f - x_p)(x_f - x_p)^T``."""
+    nc = grid_values.shape[1]
+    for p in range(phi0.shape[0]):
+        for l in range(phi0.shape[1]):
+            f = lfun[p, l]
+            w = phi0[p, l]
+            rx, ry = nodes[f, 0] - x[p, 0], nodes[f, 1] - x[p, 1]
+            D[p, 0, 0] += w * rx * rx
+            D[p, 0, 1] += w * rx * ry
+            D[p, 1, 1] += w * ry * ry
+            for c in range(nc):
+                B[p, c, 0] += w * grid_values[f, c] * rx
+                B[p, c, 1] += w * grid_values[f, c] * ry
+        D[p, 1, 0] = D[p, 0, 1]
+
+
+def affine_moments(space: Space, particles, grid_values: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """APIC's ``D_p = sum_i N_i(x_p) (x_i - x_p)(x_i - x_p)^T`` ``(n, 2, 2)`` and, for grid
+    values ``(num_local_functions, nc)``, ``B_p = sum_i f_i N_i(x_p) (x_i - x_p)^T`` ``(n, nc, 2)``.
+
+    ``D_p`` is computed particle by particle, so that it is exact for the clamped wall
+    B-splines and for Q1 (``h^2/4 I`` only for interior quadratic B-splines). It is
+    diagonal for both (tensor products reproducing linear fields), and it vanishes where a
+    single function is non-zero (a particle on a clamped wall, or on a Q1 node), where
+    ``B_p`` vanishes alike.
+    """
+    phi, lfun = space.tabulate_particles(particles, order=0)
+    grid_values = np.zeros((1, 0)) if grid_values is None else np.ascontiguousarray(grid_values)
+    nc = grid_values.shape[1]
+    B = np.zeros((len(particles), nc, 2))
+    D = np.zeros((len(particles), 2, 2))
+    _apic_moments(np.ascontiguousarray(phi[:, 0, :]), lfun, function_nodes(space), np.ascontiguousarray(particles.x),
+                  grid_values, B, D)
+    return D, B
+
+
+def affine_grid_to_particles(gf: GridFunction, particles, kind: str = "apic", jets: np.ndarray | None = None,
+                             components=slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    """Affine G2P of ``gf``'s ``components``: values ``(n, nc)`` and affine parts ``(n, nc, 2)``.
+
+    ``kind`` ``"apic"``: ``C_p = B_p D_p^-1`` (Jiang et al. 2015), the least-squares
+    gradient of the nodal values weighted by ``N_i(x_p)``; with it P2G and G2P conserve
+    angular momentum (:func:`angular_momentum`). ``"tpic"``: ``C_p = grad f(x_p)``, the
+    gradient of the grid field (Nakamura et al. 2023). Both are exact on affine fields; for Q1
+    they coincide (``N_i D_p^-1 (x_i - x_p) = grad N_i``). ``jets`` (from
+    :func:`grid_jets_to_particles` of ``gf``, order >= 1) saves tabulating again.
+    """
+    if kind not in AFFINE_KINDS:
+        raise ValueError(f"affine transfer must be one of {AFFINE_KINDS}, got {kind!r}")
+    if jets is None:
+        jets = grid_jets_to_particles(gf, particles, order=1)
+    values = jets[:, 0, components]
+    if kind == "tpic":
+        return values, gradient(jets, gf.space.grid.h)[:, components]
+    D, B = affine_moments(gf.space, particles, np.ascontiguousarray(gf.values[:, components]))
+    return values, B @ _inverse_moments(D, gf.space.grid.h)
+
+
+def _inverse_moments(D: np.ndarray, h: float) -> np.ndarray:
+    """``D^-1`` of symmetric 2 x 2 moments; a vanishing moment (a particle on a clamped wall or a
+    Q1 node, where B vanishes too) is floored at ``1e-14 h^2``, its part of ``C`` then zero."""
+    floor = 1e-14 * h * h
+    a, b, d = np.maximum(D[:, 0, 0], floor), D[:, 0, 1], np.maximum(D[:, 1, 1], floor)
+    det = a * d - b * b
+    inverse = np.empty_like(D)
+    inverse[:, 0, 0], inverse[:, 1, 1] = d / det, a / det
+    inverse[:, 0, 1] = inverse[:, 1, 0] = -b / det
+    return inverse
+
+
+def angular_momentum(space: Space, particles, gradients: np.ndarray | None = None, centre=(0.0, 0.0)) -> float:
+    """Angular momentum about ``centre`` of the particles on all ranks, with their affine parts::
+
+        L = sum_p m_p ((x_p - c) x v_p + (C_p D_p)_yx - (C_p D_p)_xy)
+
+    (2-D cross products, ``C_p`` the ``gradients``, ``D_p`` of :func:`affine_moments`): what
+    APIC's P2G and G2P conserve, equal to the grid's ``sum_i m_i (x_i - c) x v_i`` before and
+    after a transfer. Without ``gradients`` only the first term.
+    """
+    m, v = particles["mass"], particles["velocity"]
+    r = particles.x - np.asarray(centre, dtype=float)
+    local = float(m @ (r[:, 0] * v[:, 1] - r[:, 1] * v[:, 0]))
+    if gradients is not None:
+        D, _ = affine_moments(space, particles)
+        CD = np.asarray(gradients) @ D
+        local += float(m @ (CD[:, 1, 0] - CD[:, 0, 1]))
+    return space.comm.allreduce(local)
+
+
+# -- the particle state of the implicit step ---------------------------------------------------------
+#: the particles' affine parts of velocity and acceleration, ``[p, c, d] = d q_c / d x_d``
+AFFINE_FIELDS = ("affine_velocity", "affine_acceleration")
+
+
+def pic_share(kind: str, pic_blend: float, pic_rate: float, dt: float) -> float:
+    """The PIC share ``k`` of a step's G2P: 1 for ``apic`` and ``tpic``, else ``min(1, pic_blend + pic_rate dt)``.
+
+    A share per step damps per unit time as ``k / dt``, which grows as the step falls; a share
+    ``pic_rate dt`` damps at a rate of ``pic_rate`` times the share of a mode that one PIC
+    transfer takes, independent of dt, and with affine parts that share falls fast with h.
+    """
+    return 1.0 if kind in AFFINE_KINDS else min(1.0, pic_blend + pic_rate * dt)
+
+
+def add_affine_fields(particles, kind: str):
+    """Give the particles the affine parts :data:`AFFINE_FIELDS` (zero) if ``kind`` carries them."""
+    if kind != "flip":
+        for name in AFFINE_FIELDS:
+            if name not in particles.fields:
+                particles.add_field(name, (2, 2))
+
+
+def project_state(particles, kind: str, out: GridFunction) -> GridFunction:
+    """P2G of mass, momentum, mass-weighted acceleration and particle counts into ``out``
+    (fields ``m``, ``mv``, ``ma``, ``count``): ``(m v)_i = sum_p m_p N_i(x_p) (v_p + C_p (x_i - x_p))``,
+    ``C_p`` the particle's affine part (none for ``flip``), likewise the acceleration."""
+    mass = particles["mass"][:, None]
+    values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
+    if kind == "flip":
+        return particles_to_grid(out.space, particles, values, counts=True, out=out)
+    gradients = mass[:, :, None] * np.concatenate(
+        [np.zeros((len(particles), 1, 2)), particles[AFFINE_FIELDS[0]], particles[AFFINE_FIELDS[1]]], axis=1)
+    return affine_particles_to_grid(out.space, particles, values, gradients, counts=True, out=out)
+
+
+def update_state(g2p: GridFunction, jets: np.ndarray, particles, kind: str, share: float):
+    """G2P of velocity and acceleration from ``g2p`` (fields ``dv``, ``da``: the step's changes;
+    ``v``, ``a``: the new values) and its ``jets`` at the particles.
+
+    The values by :func:`flip` with the PIC ``share``; for the affine kinds also the affine
+    parts of ``v_{n+1}`` and ``a_{n+1}``, taken whole (``B_p D_p^-1`` for ``apic`` and
+    ``affine-flip``, the grid gradient for ``tpic``). The acceleration, Newmark's state, goes
+    as the velocity, so that the next step starts from one transferred pair.
+    """
+    space = g2p.space
+    at = {name: jets[:, 0, space.field_slice(name)] for name in ("dv", "da", "v", "a")}
+    particles["velocity"][:] = flip(particles["velocity"], at["dv"], at["v"], share)
+    particles["acceleration"][:] = flip(particles["acceleration"], at["da"], at["a"], share)
+    if kind != "flip":
+        v_and_a = np.r_[space.field_slice("v"), space.field_slice("a")]
+        _, affine = affine_grid_to_particles(g2p, particles, "tpic" if kind == "tpic" else "apic", jets, v_and_a)
+        particles[AFFINE_FIELDS[0]][:], particles[AFFINE_FIELDS[1]][:] = affine[:, :2], affine[:, 2:]

@@ -45,10 +45,11 @@ def test_dambreak_checks_its_front_against_interfoam(tmp_path):
     out = ended(run_demo("dambreak", "--end-time", 0.27, "--quiet", "--out", tmp_path))
     summary = json.loads((tmp_path / "summary.json").read_text())
     print(out, {k: v for k, v in summary.items() if k.startswith("front")})
-    assert "front vs interFoam 160²: 5.41 %" in out
+    assert "front vs interFoam 160²: 1.98 %" in out  # FLIP/PIC (the seed's transfer): 5.41 %
     assert summary["status"] == "completed" and summary["steps"] == 270 and summary["particles"] == 800
-    assert summary["front_difference_vs_interfoam_160"] <= 0.056  # measured 0.0541 (RMS, 0.3 < T <= 3)
-    assert summary["front_rms_error_vs_koshizuka_oka"] <= 0.100  # measured 0.0970 (T <= 3); PySPH's WCSPH: 11 %
+    assert summary["front_difference_vs_interfoam_160"] <= 0.021  # measured 0.0198 (RMS, 0.3 < T <= 3; FLIP/PIC 0.0541)
+    # the experiment's gate and friction slow its front: less numerical damping is further from it
+    assert summary["front_rms_error_vs_koshizuka_oka"] <= 0.145  # measured 0.1402 (FLIP/PIC 0.0970); PySPH: 11 %
     for name in ("front.png", "front.csv", "volume.csv", "particles.pvd", "grid.pvd", "snapshot_t0.200.png",
                  "snapshot_final.png"):
         assert (tmp_path / name).stat().st_size > 0, name
@@ -152,7 +153,7 @@ def test_cavity_short_run(tmp_path):
     assert [r["method"] for r in runs] == ["FEM-only", "MPM"]
     print([(r["extra"]["error_u"], r["extra"]["error_v"]) for r in runs])
     assert runs[0]["error"] < 0.181  # FEM-only, measured 0.1793 (u; v 0.1522)
-    assert runs[1]["error"] < 0.209  # MPM, measured 0.2066 (u; v 0.1811)
+    assert runs[1]["error"] < 0.209  # MPM, measured 0.2066 (u; v 0.1811); FLIP/PIC as the case's transfer
     errors = np.genfromtxt(tmp_path / "errors.csv", delimiter=",", skip_header=1, names=True, dtype=None)
     np.testing.assert_allclose(errors["error_u"], [r["extra"]["error_u"] for r in runs])
 
@@ -164,6 +165,26 @@ def test_cavity_short_run(tmp_path):
 ])
 def test_cavity_bad_flags_are_refused_with_a_message(flags, message):
     assert message in ended(run_demo("cavity", *flags), status=2)
+
+
+def test_taylor_green_demo(tmp_path):
+    """32², t = 0.25: the demo checks its own bound (affine-FLIP's numerical dissipation) and writes its rows."""
+    ended(run_demo("taylor_green", "--out", tmp_path))
+    rows = json.loads((tmp_path / "taylor_green.json").read_text())
+    assert [(r["variant"], r["nu"]) for r in rows] == [("FLIP/PIC", 1e-6), ("affine-FLIP", 1e-6), ("FLIP/PIC", 1e-2),
+                                                        ("affine-FLIP", 1e-2)]
+
+
+def test_gresho_demo(tmp_path):
+    ended(run_demo("gresho", "--out", tmp_path))
+    assert len(json.loads((tmp_path / "gresho.json").read_text())) == 2
+
+
+def test_column_at_rest_demo_and_its_bad_flag(tmp_path):
+    ended(run_demo("column_at_rest", "--end-time", 0.5, "--out", tmp_path))
+    assert len(json.loads((tmp_path / "column.json").read_text())) == 2
+    assert "--end-time must be > 0, got 0.0" in ended(run_demo("column_at_rest", "--end-time", 0, "--out", tmp_path),
+                                                      status=2)
 
 
 def test_stokes_on_lattice_particles_converges_at_second_order(tmp_path):

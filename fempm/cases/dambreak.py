@@ -134,7 +134,7 @@ def add_flags(parser: argparse.ArgumentParser):
     flag("--basis", dest="solver.basis", choices=("bspline", "q1"), help="grid basis (scene: bspline)")
     flag("--walls", choices=("slip", "no-slip"), help="every wall (scene: slip)")
     flag("--viscosity", dest="fluid.viscosity", type=float, metavar="MU", help="Pa s (scene: 1e-3)")
-    flag("--pic", dest="solver.pic_blend", type=float, metavar="SHARE", help="PIC share of the FLIP/PIC update, 0..1")
+    flag("--pic", dest="solver.pic_blend", type=float, metavar="SHARE", help="PIC share per step, 0..1 (scene: 0)")
     flag("--forms", dest="solver.forms", type=_forms, metavar="FORMS", help="weak forms: a forms/ name or a .py file")
     flag("--out", dest="output.folder", metavar="DIR", help="output folder")
     flag("--overwrite", action="store_true", help="replace an earlier run's files in the output folder")

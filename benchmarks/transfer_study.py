@@ -1,0 +1,144 @@
+"""The particle-grid transfers measured (issue 11): the seed's FLIP/PIC against the default affine-FLIP.
+
+Four cases, each run with both transfers (``fempm.cases.vortices.VARIANTS``):
+
+* the dam break (40 x 40, 2 x 2 particles per cell, to t = 0.27 s): the front's RMS relative
+  difference from interFoam 160 x 160 over 0.3 < T <= 3 at several time steps, and 80 x 80;
+* the Taylor-Green vortex (``fempm.cases.vortices.taylor_green``): numerical dissipation rate per
+  unit time at nu = 1e-6 and Re = 100, two grids, three steps (U dt / h = 0.4, 0.2, 0.1);
+* the Gresho vortex (``fempm.cases.vortices.gresho``): kinetic energy, angular momentum and the
+  u_theta error, two grids;
+* the dam-break column at rest (``fempm.cases.column.rest``): volume and speeds.
+
+The results go to ``docs/verification/transfers.json`` and, through the template
+``templates/verification-transfers.md``, to the transfers section of ``docs/verification.md``
+(the page's other sections, written by ``report.py``, are kept as they are; each case's entry says
+which command made it, so that cases may be rerun one at a time)::
+
+    python benchmarks/transfer_study.py                 # the short studies (about 10 minutes)
+    python benchmarks/transfer_study.py --full          # t = 3 Gresho, 10 s column, all steps (hours)
+    python benchmarks/transfer_study.py --case taylor_green gresho
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
+import pages
+from fempm import diagnostics, output, references
+from fempm.cases import column, dambreak, vortices
+from fempm.simulation import build_solver
+from fempm.verification import advance
+
+RESULTS = pages.ROOT / "docs" / "verification" / "transfers.json"
+PAGE = pages.ROOT / "docs" / "verification.md"
+MARKER = "## Transfers: FLIP/PIC against affine-FLIP"
+
+
+def dambreak_front(variant: str, cells: int = 40, dt: float = 1e-3, end: float = 0.27) -> dict:
+    """The dam break's front difference from interFoam 160^2 (0.3 < T <= 3) with a transfer."""
+    changes = {"time.end": end, "time.dt": dt, "domain.cells": [cells, cells], "output.progress": False,
+               **{f"solver.{k}": v for k, v in vortices.VARIANTS[variant].items()}}
+    solver = build_solver(dambreak.scene(changes, files=False))
+    history = [(0.0, diagnostics.front_position(solver.particles))]
+    run = advance(solver, end, lambda s: history.append((s.time, diagnostics.front_position(s.particles))))
+    h = np.array(history)
+    error = references.front_difference(references.dimensionless_front(h[:, 0], h[:, 1]),
+                                        references.interfoam_front(160))
+    return {"variant": variant, "cells": cells, "dt": dt, "error": error, "status": run.status, "cause": run.cause,
+            "t": run.time, "wall": run.wall}
+
+
+def studies(full: bool) -> dict:
+    """Which runs each case makes (short or full)."""
+    return {
+        "dambreak": [(v, 40, dt) for v in vortices.VARIANTS for dt in (1e-3, 5e-4, 2.5e-4)]
+        + [("affine-FLIP", 80, 1e-3)] + ([("FLIP/PIC", 80, 1e-3)] if full else []),
+        "taylor_green": [(v, n, c / n, nu) for v in vortices.VARIANTS for nu in (1e-6, 1e-2) for n in (32, 64)
+                         for c in (0.4, 0.2, 0.1) if full or nu == 1e-6],
+        "gresho": [(v, n, 0.4 / n, 3.0 if full else 0.5) for v in vortices.VARIANTS for n in (32, 64)],
+        "column": [(v, 10.0 if full else 1.0) for v in vortices.VARIANTS],
+    }
+
+
+RUNS = {"dambreak": dambreak_front, "taylor_green": vortices.taylor_green, "gresho": vortices.gresho,
+        "column": column.rest}
+
+
+def _outcome(r: dict) -> str:
+    return "completed" if r["status"] == "completed" else f"stopped at {r['t']:.3g}: {r['cause']}"
+
+
+def _made(case: dict) -> str:
+    return (f"`{case['command']}` on {case['date']} UTC, fempm {case['commit']}, {case['machine']} shared with other "
+            f"work ({case['seconds']:.0f} s).")
+
+
+def section(data: dict) -> str:
+    """The transfers section of ``docs/verification.md`` from the stored results (one entry per case:
+    its rows and how they were made)."""
+    rows = {case: entry["rows"] for case, entry in data.items()}
+    pct = lambda x, d=2: f"{100 * x:.{d}f} %"  # noqa: E731
+    tables = {
+        "dambreak": pages.table(["transfer", "cells", "dt (s)", "front vs interFoam 160²", "wall (s)", "outcome"], [
+            [r["variant"], r["cells"], f"{r['dt']:g}", pct(r["error"]), f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("dambreak", [])]),
+        "taylor_green": pages.table(["transfer", "ν", "cells", "dt", "numerical dissipation (1/unit time)",
+                                     "KE(t)/KE(0) (exact)", "wall (s)", "outcome"], [
+            [r["variant"], f"{r['nu']:g}", r["cells"], f"{r['dt']:.3g}", f"{r['numerical']:.2e}",
+             f"{r['ke_end']:.5f} ({r['exact_end']:.5f})", f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("taylor_green", [])]),
+        "gresho": pages.table(["transfer", "cells", "dt", "t", "KE change", "angular momentum change",
+                               "u_θ L2 error", "wall (s)", "outcome"], [
+            [r["variant"], r["cells"], f"{r['dt']:.3g}", f"{r['t']:g}", f"{100 * r['ke']:+.2f} %",
+             f"{100 * r['L']:+.3f} %", pct(r["profile"]), f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("gresho", [])]),
+        "column": pages.table(["transfer", "basis", "t (s)", "volume change", "speed at the end (m/s)",
+                               "largest speed (m/s)", "wall (s)", "outcome"], [
+            [r["variant"], r["basis"], f"{r['t']:g}", f"{100 * r['volume']:+.3f} %", f"{r['speed']:.1e}",
+             f"{r['peak']:.1e}", f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("column", [])]),
+    }
+    made = {f"{case}_made": _made(data[case]) if case in data else "Not run yet." for case in RUNS}
+    return pages.fill("verification-transfers.md", marker=MARKER, **tables, **made)
+
+
+def write_section(page: Path = PAGE, results: Path = RESULTS):
+    """Put the stored results' section at the end of the page, in place of an earlier one."""
+    text = page.read_text() if page.exists() else ""
+    kept = text.split(MARKER)[0].rstrip("\n")
+    pages.write(page, (kept + "\n\n" if kept else "") + section(json.loads(results.read_text())))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--full", action="store_true", help="the whole studies (hours)")
+    parser.add_argument("--case", nargs="+", choices=tuple(RUNS), default=list(RUNS))
+    parser.add_argument("--page-only", action="store_true", help="rewrite the section from the stored results")
+    args = parser.parse_args(argv)
+    if not args.page_only:
+        stored = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        plan = studies(args.full)
+        for case in args.case:
+            start, rows = time.perf_counter(), []
+            for run in plan[case]:
+                rows.append(RUNS[case](*run))
+                print(case, json.dumps(rows[-1]), flush=True)
+            made = {k: v for k, v in pages.provenance().items() if k != "node"}
+            command = f"python benchmarks/transfer_study.py{' --full' if args.full else ''} --case {case}"
+            stored[case] = {"rows": rows, "command": command, "seconds": time.perf_counter() - start, **made}
+            RESULTS.parent.mkdir(parents=True, exist_ok=True)
+            output.write_json(RESULTS, stored)
+    write_section()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

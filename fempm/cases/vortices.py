@@ -1,0 +1,178 @@
+"""Vortices in the closed unit slip box, no gravity: what the particle-grid transfer dissipates.
+
+* Taylor-Green: ``u = U sin(pi x) cos(pi y)``, ``v = -U cos(pi x) sin(pi y)`` is an exact
+  Navier-Stokes solution in the unit box with slip walls (zero normal velocity and zero shear
+  stress there); its amplitude decays as ``exp(-2 pi^2 nu t)`` (``|k|^2 = 2 pi^2``), its
+  kinetic energy as ``exp(-4 pi^2 nu t)``. The numerical dissipation rate is the fitted
+  ``-d ln KE / dt`` less ``4 pi^2 nu``, per unit time.
+* Gresho & Chan (1990): the steady inviscid vortex ``u_theta = 5 r`` (r < 0.2), ``2 - 5 r``
+  (0.2 <= r < 0.4), 0 beyond, about the box's centre, held by the pressure
+  ``p / rho = 5 + 25 r^2 / 2`` (r < 0.2), ``9 - 4 ln 0.2 + 25 r^2 / 2 - 20 r + 4 ln r``
+  (r < 0.4), ``3 + 4 ln 2`` beyond. Kinetic energy and angular momentum (with the particles'
+  affine parts, :func:`fempm.transfer.angular_momentum`) stay; the profile error is the
+  mass-weighted relative L2 difference of the particles' ``u_theta`` from the exact one.
+
+Both start from the exact velocity, its exact Lagrangian acceleration
+``Du/Dt = -grad p / rho + nu lap u`` (the Newmark state: the exact pressure enters through it)
+and, with an affine transfer, the exact velocity and acceleration gradients. The volume
+correction is off: in a box full of water at rest there is nothing for it to correct.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from mpi4py import MPI
+
+from fempm import transfer
+from fempm.bases import BASES
+from fempm.grid import Grid
+from fempm.implicit import ImplicitSolver
+from fempm.options import Physics, Scheme
+from fempm.particles import Particles, Rectangle
+from fempm.verification import advance
+
+__all__ = ["RHO", "VARIANTS", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "taylor_green"]
+
+RHO = 1000.0  #: kg/m^3
+#: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
+VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0}, "affine-FLIP": {}}
+CENTRE = np.array([0.5, 0.5])
+
+
+def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
+               comm=MPI.COMM_WORLD) -> ImplicitSolver:
+    """The unit slip box filled with 2 x 2 particles per cell at the given velocity and acceleration
+    (functions of the positions returning ``(values (n, 2), gradients (n, 2, 2))``)."""
+    grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
+    water = Particles(grid)
+    water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=2, density=RHO)
+    scheme = Scheme(dt=dt, alpha=0.0, **VARIANTS[variant])
+    transfer.add_affine_fields(water, scheme.transfer)
+    for name, field in (("velocity", velocity), ("acceleration", acceleration)):
+        value, grad = field(water.x)
+        water[name][:] = value
+        if scheme.transfer != "flip":
+            water[f"affine_{name}"][:] = grad
+    return ImplicitSolver(BASES[basis](grid), water, Physics(viscosity=RHO * nu, gravity=(0.0, 0.0)), scheme)
+
+
+def kinetic_energy(particles) -> float:
+    """``sum_p m_p |v_p|^2 / 2`` on all ranks."""
+    v = particles["velocity"]
+    return particles.grid.comm.allreduce(float(particles["mass"] @ (0.5 * np.einsum("ij,ij->i", v, v))))
+
+
+# -- Taylor-Green -----------------------------------------------------------------------------------
+def _taylor_green_fields(U: float, nu: float):
+    pi = np.pi
+
+    def velocity(x):
+        s, c = np.sin(pi * x), np.cos(pi * x)
+        v = U * np.column_stack([s[:, 0] * c[:, 1], -c[:, 0] * s[:, 1]])
+        grad = U * pi * np.stack([np.column_stack([c[:, 0] * c[:, 1], -s[:, 0] * s[:, 1]]),
+                                  np.column_stack([s[:, 0] * s[:, 1], -c[:, 0] * c[:, 1]])], axis=1)
+        return v, grad
+
+    def acceleration(x):  # -grad p / rho + nu lap u with p = rho U^2 / 4 (cos 2 pi x + cos 2 pi y)
+        v, grad = velocity(x)
+        a = 0.5 * pi * U**2 * np.sin(2 * pi * x) - 2 * pi**2 * nu * v
+        da = np.zeros_like(grad)
+        da[:, 0, 0], da[:, 1, 1] = pi**2 * U**2 * np.cos(2 * pi * x[:, 0]), pi**2 * U**2 * np.cos(2 * pi * x[:, 1])
+        return a, da - 2 * pi**2 * nu * grad
+
+    return velocity, acceleration
+
+
+def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.25, U: float = 1.0,
+                 basis: str = "bspline") -> dict:
+    """The Taylor-Green vortex to ``end``: ``numerical`` is the fitted ``-d ln KE/dt - 4 pi^2 nu``.
+
+    Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``ke_end`` and ``exact_end`` (KE over its
+    start), ``status``, ``cause``, ``t``, ``wall``.
+    """
+    solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis)
+    times, energy = [0.0], [kinetic_energy(solver.particles)]
+
+    def each(s):
+        times.append(s.time)
+        energy.append(kinetic_energy(s.particles))
+
+    run = advance(solver, end, each)
+    t, ke = np.array(times), np.array(energy)
+    rate = float(-np.polyfit(t, np.log(ke), 1)[0]) if len(t) > 2 else float("nan")
+    viscous = 4 * np.pi**2 * nu
+    return {"variant": variant, "cells": cells, "dt": dt, "nu": nu, "rate": rate, "viscous": viscous,
+            "numerical": rate - viscous, "ke_end": float(ke[-1] / ke[0]), "exact_end": float(np.exp(-viscous * t[-1])),
+            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
+
+
+# -- Gresho -----------------------------------------------------------------------------------------
+def gresho_speed(r: np.ndarray) -> np.ndarray:
+    """``u_theta(r)`` of the Gresho vortex."""
+    return np.where(r < 0.2, 5 * r, np.where(r < 0.4, 2 - 5 * r, 0.0))
+
+
+def gresho_pressure(r: np.ndarray) -> np.ndarray:
+    """``p / rho`` of the Gresho vortex (zero at the centre's constant ``5``: the module's formula)."""
+    r = np.maximum(r, 1e-300)
+    return np.where(r < 0.2, 5 + 12.5 * r**2,
+                    np.where(r < 0.4, 9 - 4 * np.log(0.2) + 12.5 * r**2 - 20 * r + 4 * np.log(r), 3 + 4 * np.log(2)))
+
+
+def _polar(x):
+    r = x - CENTRE
+    return r, np.maximum(np.hypot(r[:, 0], r[:, 1]), 1e-300)
+
+
+def _gresho_fields():
+    def rotation(x, w):  # the field w(r) (-y, x) and its gradient, w = u_theta / r
+        r, radius = _polar(x)
+        omega = w(radius)
+        step = 1e-7
+        slope = (w(radius + step) - w(np.maximum(radius - step, 0.0))) / (radius + step - np.maximum(radius - step, 0))
+        perp = np.column_stack([-r[:, 1], r[:, 0]])
+        e = r / radius[:, None]
+        grad = (slope[:, None, None] * perp[:, :, None] * e[:, None, :]
+                + omega[:, None, None] * np.array([[0.0, -1.0], [1.0, 0.0]]))
+        return omega[:, None] * perp, grad
+
+    def velocity(x):
+        return rotation(x, lambda r: gresho_speed(r) / np.maximum(r, 1e-300))
+
+    def acceleration(x):  # centripetal -u_theta^2 / r e_r = -grad p / rho: -(u_theta / r)^2 r_vec
+        r, radius = _polar(x)
+        w2 = (gresho_speed(radius) / radius) ** 2
+        step = 1e-7
+        slope = ((gresho_speed(radius + step) / (radius + step)) ** 2 - w2) / step
+        e = r / radius[:, None]
+        grad = -(slope[:, None, None] * r[:, :, None] * e[:, None, :] + w2[:, None, None] * np.eye(2))
+        return -w2[:, None] * r, grad
+
+    return velocity, acceleration
+
+
+def gresho_measures(solver) -> dict:
+    """Kinetic energy, angular momentum about the centre (affine parts included) and u_theta's
+    mass-weighted relative L2 error."""
+    p = solver.particles
+    affine = p["affine_velocity"] if "affine_velocity" in p.fields else None
+    L = transfer.angular_momentum(solver.system.space, p, affine, CENTRE)
+    r, radius = _polar(p.x)
+    u_theta = (r[:, 0] * p["velocity"][:, 1] - r[:, 1] * p["velocity"][:, 0]) / radius
+    exact = gresho_speed(radius)
+    comm = p.grid.comm
+    error = np.sqrt(comm.allreduce(float(p["mass"] @ (u_theta - exact) ** 2))
+                    / comm.allreduce(float(p["mass"] @ exact**2)))
+    return {"ke": kinetic_energy(p), "L": L, "profile": float(error)}
+
+
+def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline") -> dict:
+    """The Gresho vortex to ``end``: relative changes of kinetic energy (``ke``) and angular momentum
+    (``L``), the u_theta error at the end (``profile``) and at the start (``profile0``)."""
+    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis)
+    start = gresho_measures(solver)
+    run = advance(solver, end)
+    final = gresho_measures(solver)
+    return {"variant": variant, "cells": cells, "dt": dt, "ke": final["ke"] / start["ke"] - 1,
+            "L": final["L"] / start["L"] - 1, "profile": final["profile"], "profile0": start["profile"],
+            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}

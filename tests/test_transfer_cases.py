@@ -1,0 +1,97 @@
+"""The transfers on the cases of issue 11: Taylor-Green, Gresho, the column at rest, the dam break.
+
+The short versions run in the default suite; the studies of ``benchmarks/transfer_study.py``
+(``docs/verification.md``) are marked ``full``. FLIP/PIC is the seed's transfer (10 % PIC per
+step), affine-FLIP the default (APIC's affine parts, FLIP increments, a PIC share of 100/s).
+"""
+
+import pytest
+from mpi4py import MPI
+
+import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
+from fempm.cases import column, vortices
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial studies")
+
+
+def test_taylor_green_dissipation_of_affine_flip_falls_with_dt_and_flip_pic_grows():
+    """32², nu = 1e-6, t = 0.25: the numerical dissipation rate (beyond 4 pi^2 nu) of affine-FLIP is
+    below 1 % per unit time and falls as dt falls; FLIP/PIC's is ten times larger and grows."""
+    coarse = vortices.taylor_green("affine-FLIP", 32, 0.0125, 1e-6)
+    fine = vortices.taylor_green("affine-FLIP", 32, 0.003125, 1e-6)
+    print(coarse["numerical"], fine["numerical"])
+    assert 0 < coarse["numerical"] < 0.0085  # measured 7.19e-3 per unit time
+    assert 0 < fine["numerical"] < 0.6 * coarse["numerical"]  # measured 3.35e-3
+    old = vortices.taylor_green("FLIP/PIC", 32, 0.003125, 1e-6)
+    print(old["numerical"])
+    assert old["numerical"] > 0.25  # measured 0.307 (8.3e-2 at dt 0.0125)
+
+
+def test_gresho_vortex_short():
+    """32², t = 0.25, u dt/h = 0.4: affine-FLIP keeps the kinetic energy within 2.5 % (FLIP/PIC loses 9 %);
+    the angular momentum grows by 2.9 %, an error of the step (0.75 % at dt/4)."""
+    new = vortices.gresho("affine-FLIP", 32, 0.0125, 0.25)
+    old = vortices.gresho("FLIP/PIC", 32, 0.0125, 0.25)
+    print(new, old)
+    assert new["status"] == old["status"] == "completed"
+    assert -0.026 < new["ke"] < 0  # measured -2.38 %
+    assert old["ke"] < -0.085  # measured -9.18 %
+    assert 0 < new["L"] < 0.031  # measured +2.87 %
+    assert new["profile"] < 0.066  # measured 6.29 % (FLIP/PIC 7.64 %)
+
+
+def test_column_stays_at_rest_with_affine_flip():
+    """The dam-break column held 0.5 s (dt 1 ms): volume within 0.2 %, speeds below 1e-3 m/s."""
+    r = column.rest("affine-FLIP", 0.5)
+    print(r)
+    assert r["status"] == "completed"
+    assert abs(r["volume"]) < 0.002  # measured -1.5e-4
+    assert r["speed"] < 6e-4  # measured 4.65e-4 m/s (largest over the run 1.07e-3, while settling)
+
+
+@pytest.mark.full
+def test_taylor_green_at_64_cells():
+    """nu = 1e-6, 64², U dt/h = 0.4, 0.2, 0.1: below 1 % per unit time, not growing as dt falls."""
+    rates = [vortices.taylor_green("affine-FLIP", 64, c / 64, 1e-6)["numerical"] for c in (0.4, 0.2, 0.1)]
+    print(rates)
+    assert max(rates) < 0.01
+    assert rates[2] <= rates[0]
+    coarse = vortices.taylor_green("affine-FLIP", 32, 0.4 / 32, 1e-6)["numerical"]
+    assert rates[0] < coarse
+
+
+@pytest.mark.full
+def test_gresho_vortex_to_t_3():
+    """64², t = 3 (issue 11's targets, KE within 1 % and angular momentum within 0.1 %, are not met by
+    either transfer: the vortex does not survive the particles' disorder); affine-FLIP loses less energy."""
+    new, old = (vortices.gresho(v, 64, 0.4 / 64, 3.0) for v in ("affine-FLIP", "FLIP/PIC"))
+    print(new, old)
+    assert new["status"] == old["status"] == "completed"
+    assert old["ke"] < new["ke"] < -0.45  # measured -49.7 % (FLIP/PIC -66.3 %)
+    assert 0 < new["L"] < 0.095  # measured +8.79 % (FLIP/PIC +9.14 %)
+
+
+@pytest.mark.full
+def test_column_at_rest_for_10_s():
+    """Speeds far below 1e-3 m/s; the volume grows by 0.33 %, above issue 11's 0.2 % (FLIP/PIC: 0.30 %):
+    the one-sided volume correction's, not the transfer's."""
+    r = column.rest("affine-FLIP", 10.0)
+    print(r)
+    assert r["status"] == "completed"
+    assert 0 < r["volume"] < 0.0036  # measured 0.00328
+    assert r["speed"] < 5e-5  # measured 3.18e-5 m/s (largest over the run 1.07e-3, while settling)
+
+
+@pytest.mark.full
+def test_dambreak_front_does_not_drift_as_dt_falls():
+    """40², dt 1e-3, 5e-4, 2.5e-4: within 2.5 % of interFoam 160² and no worse at dt/2, dt/4."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    import transfer_study
+
+    errors = [transfer_study.dambreak_front("affine-FLIP", 40, dt)["error"] for dt in (1e-3, 5e-4, 2.5e-4)]
+    print(errors)
+    assert max(errors) < 0.021  # measured 1.98, 1.92, 1.93 %
+    assert max(errors[1:]) <= errors[0] + 0.001
