@@ -78,10 +78,13 @@ def schur_factor_options(free_dofs: int) -> dict:
     return {"fieldsplit_p_pc_factor_mat_solver_type": "mumps"}
 
 
-def direct_options(comm) -> dict:
-    """The exact solver's options for ``comm``: :data:`EXACT` on one rank; on several, :data:`DIRECT`
-    made reproducible (every rank factors a gathered copy)."""
-    return EXACT if comm.size == 1 else {**_DIRECT_PARALLEL, "pc_redundant_number": comm.size}
+def direct_options(comm, fields: dict[str, int] | None = None) -> dict:
+    """The exact solver's options for ``comm``: :data:`EXACT` on one rank (if ``fields``, given, hold
+    a velocity ``u`` and a pressure ``p``; else :data:`DIRECT`); on several, :data:`DIRECT` made
+    reproducible (every rank factors a gathered copy)."""
+    if comm.size > 1:
+        return {**_DIRECT_PARALLEL, "pc_redundant_number": comm.size}
+    return EXACT if fields is None or {"u", "p"} <= set(fields) else DIRECT
 
 
 _AMG = ({"pc_type": "hypre", "pc_hypre_type": "boomeramg"} if PETSc.Sys.hasExternalPackage("hypre")
@@ -121,7 +124,7 @@ class LinearSolver:
         for key, value in (options or {}).items():
             opts[prefix + key] = value
         if not any(opts.hasName(prefix + key) for key in ("ksp_type", "pc_type")):
-            for key, value in direct_options(comm).items():
+            for key, value in direct_options(comm, self.fields).items():
                 opts[prefix + key] = value
         self.ksp = _ksp_from_options(comm, prefix)
         # an exact Schur solve (S by LU) whose LU package is not named: chosen by size, MUMPS LU if it fails
