@@ -73,6 +73,7 @@ def worker(cells: int, warm: int, steps: int, petsc: dict) -> dict:
     for name, evs in events.items():
         out[name] = (sum(e.getPerfInfo()["time"] for e in evs) - before[name]) * per
     out["free dofs"] = solver.system.linear_solver.ksp.getOperators()[0].getSize()[0]
+    out["pattern kept"] = getattr(solver.system.linear_solver, "reuses", 0)
     return out
 
 
@@ -118,7 +119,8 @@ def main():
     table = {name: {k: median([r[k] for r in rs]) for k in keys} for name, rs in results.items()}
     first = results["this"][0]
     print(f"{first['particles']} particles, {first['free dofs']} free dofs at the last step; "
-          f"load average at end {os.getloadavg()}")
+          f"load average at end {os.getloadavg()}; solves that kept the last pattern: "
+          + ", ".join(f"{name} {rs[0]['pattern kept']}" for name, rs in results.items()))
     header = f"{'ms per step':16s}" + "".join(f"{name:>10s}" for name in versions)
     print(header + ("   this/other" if "other" in versions else ""))
     for k in keys:

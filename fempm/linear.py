@@ -41,6 +41,7 @@ import difflib
 import re
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from fempm.errors import InputError
@@ -136,9 +137,15 @@ class LinearSolver:
                             and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
         self._fallback = None
+        self._previous = None  # (matrix, free dofs, their index set, the block) of the last solve
+        self.reuses = 0  # solves that kept the last one's pattern
 
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None = None) -> PETSc.Vec:
         """Solve ``A[free, free] x[free] = b[free]``; ``x`` is zero on the other dofs.
+
+        When ``A`` and ``free`` are those of the last solve (the values may differ), the block is
+        extracted into the last one's storage and the solver keeps what depends on the pattern
+        only (the orderings, symbolic factorisations and products).
 
         Args:
             A, b: the assembled system (global numbering).
@@ -148,13 +155,24 @@ class LinearSolver:
         Raises:
             SolveFailed: the solver reports failure or the solution is not finite.
         """
-        index_set = PETSc.IS().createGeneral(np.asarray(free, dtype=PETSc.IntType), comm=self.comm)
-        A_free = A.createSubMatrix(index_set, index_set)
+        free = np.asarray(free, dtype=PETSc.IntType)
+        previous = self._previous
+        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
+        if self.comm.size > 1:
+            same = self.comm.allreduce(same, op=MPI.LAND)
+        if same:  # the same block of the same matrix: its pattern, so the set-up's symbolic part, stays
+            index_set, A_free = previous[2], previous[3]
+            A.createSubMatrix(index_set, index_set, submat=A_free)
+            self.reuses += 1
+        else:
+            index_set = PETSc.IS().createGeneral(free, comm=self.comm)
+            A_free = A.createSubMatrix(index_set, index_set)
+            self.ksp.reset()  # the free set, so the operator's size, changes between solves
+            self._previous = (A, free.copy(), index_set, A_free)
         b_free = b.getSubVector(index_set)
         x_free = A_free.createVecRight()
-        self.ksp.reset()  # the free set, so the operator's size, changes between solves
         self.ksp.setOperators(A_free)
-        if self.fields and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT:
+        if not same and self.fields and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT:
             self.ksp.getPC().setFieldSplitIS(*self._splits(free))
         chosen = schur_factor_options(A_free.getSize()[0]) if self.exact_schur else {}
         opts = PETSc.Options()

@@ -89,3 +89,25 @@ def test_failed_schur_iteration_is_redone_by_lu():
     rescued, solver = _one_step(comm, petsc={"ksp_max_it": 1})  # the Schur iteration needs 3
     assert solver.fallbacks == 1
     assert _relative_difference(rescued, lu, comm) == 0.0
+
+
+def test_kept_pattern_takes_the_new_values():
+    """A second solve with the same matrix and free dofs keeps the pattern's set-up (orderings,
+    symbolic factorisations), yet solves with the matrix's new values, as a new solver would."""
+    comm = MPI.COMM_SELF
+    scene = load_scene(SCENE)
+    solver = build_solver(scene, comm)
+    solver.step()
+    ls = solver.system.linear_solver
+    A, free = solver.region.matrix, ls._previous[1]
+    b = A.createVecLeft()
+    b.setArray(np.random.default_rng(1).standard_normal(b.getLocalSize()))
+    kept = ls.reuses
+    once = ls.solve(A, b, free).copy()
+    A.scale(2.0)
+    twice = ls.solve(A, b, free).copy()
+    assert ls.reuses == kept + 2
+    fresh = linear.LinearSolver(comm, "fempm_", fields=solver.system.space.fields).solve(A, b, free)
+    assert np.array_equal(twice.getArray(), fresh.getArray())  # measured: equal to the last bit
+    half = once.getArray() / 2
+    assert np.linalg.norm(twice.getArray() - half) <= 1e-12 * np.linalg.norm(half)  # measured 0 (the scaling is exact)
