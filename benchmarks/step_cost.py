@@ -9,10 +9,11 @@ own process, the two alternating ``--rounds`` times, so that both see the same l
 gives the median over the rounds of the CPU time per step (less sensitive to the shared
 machine's load than the wall time, which is given too) and the ratio this / other.
 
-    python benchmarks/step_cost.py --cells 40 --steps 200 --against /work/main
-    python benchmarks/step_cost.py --cells 236 --steps 5 --warm 3 --rounds 2   # ~28k particles
+    python benchmarks/step_cost.py --case 40:100:300 --case 236:60:10 --against ../main --page docs/speed-step.md
 
-``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from DIR).
+A case is ``CELLS:WARM:STEPS`` (236 cells: 27,848 particles, the size of Tesserae.jl's dam
+break). ``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from
+DIR); ``--page`` writes the tables into a Markdown page (``benchmarks/templates/speed-step.md``).
 """
 
 from __future__ import annotations
@@ -25,6 +26,8 @@ import sys
 import time
 from pathlib import Path
 from types import SimpleNamespace
+
+import pages
 
 PHASES = ("project", "assemble", "solve", "update", "relocate")
 #: PETSc events that split the solve (seconds summed over the run)
@@ -77,11 +80,12 @@ def worker(cells: int, warm: int, steps: int, petsc: dict) -> dict:
     return out
 
 
-def run(python: str, root: Path, args, petsc: dict) -> dict:
+def run(python: str, root: Path, case: tuple[int, int, int], petsc: dict) -> dict:
     """One worker process with ``python`` importing fempm from ``root``."""
     env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
-    command = [python, str(Path(__file__).resolve()), "--worker", "--cells", str(args.cells), "--warm",
-               str(args.warm), "--steps", str(args.steps), "--petsc", json.dumps(petsc)]
+    cells, warm, steps = case
+    command = [python, str(Path(__file__).resolve()), "--worker", "--cells", str(cells), "--warm",
+               str(warm), "--steps", str(steps), "--petsc", json.dumps(petsc)]
     done = subprocess.run(command, env=env, cwd=root, capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -92,15 +96,47 @@ def median(values):
     return 0.5 * (values[(n - 1) // 2] + values[n // 2])
 
 
+def compare(case: tuple[int, int, int], versions: dict, rounds: int) -> tuple[str, str]:
+    """Run the versions alternately; a heading line and the Markdown table of medians and ratios."""
+    cells, warm, steps = case
+    load_start = os.getloadavg()
+    results = {name: [] for name in versions}
+    for _ in range(rounds):
+        for name, (python, root, petsc) in versions.items():
+            results[name].append(run(python, root, case, petsc))
+    load_end = os.getloadavg()
+    keys = ["step cpu", "step wall", *PHASES, "rest", *EVENTS]
+    table = {name: {k: median([r[k] for r in rs]) for k in keys} for name, rs in results.items()}
+    first = results["this"][0]
+    heading = (f"{cells}² cells, {first['particles']} particles ({first['free dofs']} free dofs at the last step), "
+               f"{steps} steps timed after {warm}, {rounds} alternating rounds; load average "
+               f"{', '.join(f'{x:.2f}' for x in load_start)} at the start, "
+               f"{', '.join(f'{x:.2f}' for x in load_end)} at the end; solves that kept the last one's "
+               f"pattern: " + ", ".join(f"{name} {rs[0]['pattern kept']}" for name, rs in results.items()))
+    label = {"step cpu": "step, CPU", "step wall": "step, wall", "rest": "rest (Python between phases)",
+             **{k: f"solve: {k} (wall)" for k in EVENTS}}
+    rows = []
+    for k in keys:
+        row = [label.get(k, k)] + [f"{table[name][k]:.3f}" for name in versions]
+        if "other" in versions:
+            row.append(f"{table['this'][k] / table['other'][k]:.2f}" if table["other"][k] > 0 else "—")
+        rows.append(row)
+    head = ["ms per step", *versions] + (["this / other"] if "other" in versions else [])
+    return heading, pages.table(head, rows)
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--cells", type=int, default=40, help="N x N cells (a multiple of 4; default 40)")
-    parser.add_argument("--warm", type=int, default=20, help="steps before timing (default 20)")
-    parser.add_argument("--steps", type=int, default=200, help="steps timed (default 200)")
+    parser.add_argument("--case", action="append", type=lambda t: tuple(int(v) for v in t.split(":")),
+                        metavar="CELLS:WARM:STEPS", help="a case (repeatable; default 40:100:300)")
     parser.add_argument("--rounds", type=int, default=3, help="runs of each version, alternating (default 3)")
     parser.add_argument("--against", type=Path, default=None, help="a checkout to compare with (its .venv)")
     parser.add_argument("--petsc", default="{}", help="PETSc options (JSON) for this checkout's runs")
+    parser.add_argument("--page", type=Path, default=None, help="write the tables into this Markdown page")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--cells", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--warm", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--steps", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         print(json.dumps(worker(args.cells, args.warm, args.steps, json.loads(args.petsc))))
@@ -108,26 +144,22 @@ def main():
     here = Path(__file__).resolve().parents[1]
     versions = {"this": (sys.executable, here, json.loads(args.petsc))}
     if args.against:
-        versions["other"] = (str(args.against / ".venv" / "bin" / "python"), args.against.resolve(), {})
-    print(f"step cost, dam break {args.cells}^2 cells, {args.steps} steps after {args.warm}, "
-          f"{args.rounds} alternating rounds; load average at start {os.getloadavg()}")
-    results = {name: [] for name in versions}
-    for _ in range(args.rounds):
-        for name, (python, root, petsc) in versions.items():
-            results[name].append(run(python, root, args, petsc))
-    keys = ["step cpu", "step wall", *PHASES, "rest", *EVENTS]
-    table = {name: {k: median([r[k] for r in rs]) for k in keys} for name, rs in results.items()}
-    first = results["this"][0]
-    print(f"{first['particles']} particles, {first['free dofs']} free dofs at the last step; "
-          f"load average at end {os.getloadavg()}; solves that kept the last pattern: "
-          + ", ".join(f"{name} {rs[0]['pattern kept']}" for name, rs in results.items()))
-    header = f"{'ms per step':16s}" + "".join(f"{name:>10s}" for name in versions)
-    print(header + ("   this/other" if "other" in versions else ""))
-    for k in keys:
-        row = f"{k:16s}" + "".join(f"{table[name][k]:10.3f}" for name in versions)
-        if "other" in versions and table["other"][k] > 0:
-            row += f"   {table['this'][k] / table['other'][k]:8.2f}"
-        print(row)
+        versions["other"] = (str(args.against.resolve() / ".venv" / "bin" / "python"), args.against.resolve(), {})
+    sections = []
+    for case in args.case or [(40, 100, 300)]:
+        heading, text = compare(case, versions, args.rounds)
+        print(heading + "\n\n" + text + "\n", flush=True)
+        sections.append(f"### {heading}\n\n{text}\n")
+    if args.page:
+        other = f"`{args.against}` (commit {_commit(args.against)})" if args.against else "none"
+        command = "python benchmarks/step_cost.py " + " ".join(sys.argv[1:])
+        pages.write(args.page, pages.fill("speed-step.md", command=command, other=other, tables="\n".join(sections),
+                                          **pages.provenance()))
+
+
+def _commit(root: Path) -> str:
+    done = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True)
+    return done.stdout.strip() or "?"
 
 
 if __name__ == "__main__":
