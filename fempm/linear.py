@@ -134,7 +134,8 @@ class LinearSolver:
         if self.ksp.getPC().getType() != PETSc.PC.Type.FIELDSPLIT:  # options naming another solver
             for key, value in EXACT.items():  # drop the default's options this solver does not read
                 name = prefix + key
-                if ("fieldsplit" in key or not opts.used(name)) and opts.getString(name, None) == str(value):
+                if (opts.hasName(name) and ("fieldsplit" in key or not opts.used(name))
+                        and opts.getString(name) == str(value)):
                     opts.delValue(name)
         # an exact Schur solve (S by LU) whose LU package is not named: chosen by size, MUMPS LU if it fails
         self.exact_schur = (self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
