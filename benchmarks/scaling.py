@@ -7,7 +7,8 @@ The shipped dam-break scene (``scenes/dambreak.toml``) refined until it holds ab
 ``--steps`` steps. Peak memory is the sum over the ranks of each process's peak
 resident set. Prints one table; the strong-scaling ratio is t(1 rank) / t(2 ranks).
 
-The direct solver on several ranks factors a whole copy on every rank (see
+"direct" is the default exact solve: on one rank the Schur complement solved to round-off
+(``fempm.linear.EXACT``), on several ranks MUMPS LU of a whole copy on every rank (see
 ``fempm.linear.direct_options``), so its memory grows with the ranks: above
 ``--direct-limit`` particles it runs on one rank only (1e6 particles took 14.5 GB on
 one rank; on two the machine's 23 GB ran out).
@@ -63,7 +64,7 @@ def measure(particles: float, linear: str, steps: int) -> dict:
     return {"particles": solver.particles.global_count(), "cells": n, "ranks": comm.size, "linear": linear,
             "build_s": build, "step_s": per_step, "peak_GB": peak_kb / 1024**2,
             "phases_s": {k: v / steps for k, v in solver.timings.items()},
-            "iterations": solver.linear_solver.ksp.getIterationNumber()}
+            "iterations": solver.system.linear_solver.ksp.getIterationNumber()}
 
 
 def run_case(particles: float, linear: str, ranks: int, steps: int) -> dict:

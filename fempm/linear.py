@@ -7,8 +7,19 @@ the region the material covers. PETSc options pass through the options database
 under the solver's prefix, e.g. ``-fempm_ksp_type gmres``. Two sets of options are
 named here:
 
-* :data:`DIRECT` (the default): LU by MUMPS, for small and medium problems (on several
-  ranks sequential MUMPS on every rank, see :func:`direct_options`);
+* :data:`EXACT` (the default on one rank, :func:`direct_options`): the velocity-pressure
+  system reduced to its pressure Schur complement, solved to round-off. FGMRES on the
+  ``full`` Schur factorisation with the velocity block by its diagonal (Jacobi) and the
+  ``selfp`` complement ``S ~ D - C diag(A)^-1 B`` factored by LU: the pressure is a third of
+  the unknowns, so the factorisation is several times cheaper than LU of the whole system,
+  and as the velocity block is nearly diagonal (the mass over ``beta dt^2``) the iteration
+  reaches ``rtol = 1e-13`` in a few steps, the same solution as LU to round-off. The LU of
+  S is PETSc's own with a reverse Cuthill-McKee ordering for small systems and MUMPS above
+  :data:`SMALL_SYSTEM` free dofs (chosen at every solve unless the options name a package,
+  :func:`schur_factor_options`); should the iteration fail, the system is solved again
+  by MUMPS LU (:data:`DIRECT`);
+* :data:`DIRECT`: LU of the whole system by MUMPS (on several ranks sequential MUMPS on every
+  rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: FGMRES preconditioned by a Schur-complement field split of the
   velocity-pressure system (Elman, Silvester & Wathen 2014, ch. 9), for large problems: the
   ``selfp`` approximation of the Schur complement ``S ~ D - C diag(A)^-1 B`` by one V-cycle of
@@ -30,12 +41,13 @@ import difflib
 import re
 
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from fempm.errors import InputError
 
-__all__ = ["DIRECT", "ITERATIVE", "LinearSolver", "SolveFailed", "check_options", "direct_options", "set_options",
-           "writing_option"]
+__all__ = ["DIRECT", "EXACT", "ITERATIVE", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
+           "direct_options", "schur_factor_options", "set_options", "writing_option"]
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
 # MUMPS's parallel factorisation schedules its work dynamically, so on several ranks its
@@ -47,9 +59,36 @@ _DIRECT_PARALLEL = {"ksp_type": "preonly", "pc_type": "redundant", "redundant_pc
                     "redundant_pc_factor_mat_solver_type": "mumps"}
 
 
-def direct_options(comm) -> dict:
-    """The direct solver's options for ``comm``: :data:`DIRECT`, made reproducible on several ranks."""
-    return DIRECT if comm.size == 1 else {**_DIRECT_PARALLEL, "pc_redundant_number": comm.size}
+#: The Schur complement solved exactly (see the module's docstring); the package of S's LU by size.
+EXACT = {
+    "ksp_type": "fgmres", "ksp_rtol": 1e-13, "ksp_atol": 1e-50, "ksp_max_it": 30,
+    "pc_type": "fieldsplit", "pc_fieldsplit_type": "schur",
+    "pc_fieldsplit_schur_fact_type": "full", "pc_fieldsplit_schur_precondition": "selfp",
+    "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
+    "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "lu",
+}
+#: Free dofs above which the Schur complement's LU is MUMPS's rather than PETSc's own.
+SMALL_SYSTEM = 1500
+_SCHUR_FACTOR_NAMES = ("fieldsplit_p_pc_factor_mat_solver_type", "fieldsplit_p_pc_factor_mat_ordering_type",
+                       "fieldsplit_p_mat_mumps_icntl_7")
+
+
+def schur_factor_options(free_dofs: int) -> dict:
+    """The package and ordering of the Schur complement's LU for a system of ``free_dofs``: PETSc's
+    with reverse Cuthill-McKee, or MUMPS with approximate minimum degree (QAMD, ``ICNTL(7) = 6``;
+    MUMPS's own choice, METIS on large systems, costs more in the analysis than it saves)."""
+    if free_dofs <= SMALL_SYSTEM:
+        return {"fieldsplit_p_pc_factor_mat_solver_type": "petsc", "fieldsplit_p_pc_factor_mat_ordering_type": "rcm"}
+    return {"fieldsplit_p_pc_factor_mat_solver_type": "mumps", "fieldsplit_p_mat_mumps_icntl_7": 6}
+
+
+def direct_options(comm, fields: dict[str, int] | None = None) -> dict:
+    """The exact solver's options for ``comm``: :data:`EXACT` on one rank (if ``fields``, given, hold
+    a velocity ``u`` and a pressure ``p``; else :data:`DIRECT`); on several, :data:`DIRECT` made
+    reproducible (every rank factors a gathered copy)."""
+    if comm.size > 1:
+        return {**_DIRECT_PARALLEL, "pc_redundant_number": comm.size}
+    return EXACT if fields is None or {"u", "p"} <= set(fields) else DIRECT
 
 
 _AMG = ({"pc_type": "hypre", "pc_hypre_type": "boomeramg"} if PETSc.Sys.hasExternalPackage("hypre")
@@ -89,12 +128,30 @@ class LinearSolver:
         for key, value in (options or {}).items():
             opts[prefix + key] = value
         if not any(opts.hasName(prefix + key) for key in ("ksp_type", "pc_type")):
-            for key, value in direct_options(comm).items():
+            for key, value in direct_options(comm, self.fields).items():
                 opts[prefix + key] = value
         self.ksp = _ksp_from_options(comm, prefix)
+        if self.ksp.getPC().getType() != PETSc.PC.Type.FIELDSPLIT:  # options naming another solver
+            for key, value in EXACT.items():  # drop the default's options this solver does not read
+                name = prefix + key
+                if (opts.hasName(name) and ("fieldsplit" in key or not opts.used(name))
+                        and opts.getString(name) == str(value)):
+                    opts.delValue(name)
+        # an exact Schur solve (S by LU) whose LU package is not named: chosen by size, MUMPS LU if it fails
+        self.exact_schur = (self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
+                            and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
+                            and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
+        self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
+        self._fallback = None
+        self._previous = None  # (matrix, free dofs, their index set, the block) of the last solve
+        self.reuses = 0  # solves that kept the last one's pattern
 
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None = None) -> PETSc.Vec:
         """Solve ``A[free, free] x[free] = b[free]``; ``x`` is zero on the other dofs.
+
+        When ``A`` and ``free`` are those of the last solve (the values may differ), the block is
+        extracted into the last one's storage and the solver keeps what depends on the pattern
+        only (the orderings, symbolic factorisations and products).
 
         Args:
             A, b: the assembled system (global numbering).
@@ -104,17 +161,38 @@ class LinearSolver:
         Raises:
             SolveFailed: the solver reports failure or the solution is not finite.
         """
-        index_set = PETSc.IS().createGeneral(np.asarray(free, dtype=PETSc.IntType), comm=self.comm)
-        A_free = A.createSubMatrix(index_set, index_set)
+        free = np.asarray(free, dtype=PETSc.IntType)
+        previous = self._previous
+        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
+        if self.comm.size > 1:
+            same = self.comm.allreduce(same, op=MPI.LAND)
+        if same:  # the same block of the same matrix: its pattern, so the set-up's symbolic part, stays
+            index_set, A_free = previous[2], previous[3]
+            A.createSubMatrix(index_set, index_set, submat=A_free)
+            self.reuses += 1
+        else:
+            index_set = PETSc.IS().createGeneral(free, comm=self.comm)
+            A_free = A.createSubMatrix(index_set, index_set)
+            self.ksp.reset()  # the free set, so the operator's size, changes between solves
+            self._previous = (A, free.copy(), index_set, A_free)
         b_free = b.getSubVector(index_set)
         x_free = A_free.createVecRight()
-        self.ksp.reset()  # the free set, so the operator's size, changes between solves
         self.ksp.setOperators(A_free)
-        if self.fields and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT:
+        if not same and self.fields and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT:
             self.ksp.getPC().setFieldSplitIS(*self._splits(free))
-        self.ksp.solve(b_free, x_free)
-        b.restoreSubVector(index_set, b_free)
+        chosen = schur_factor_options(A_free.getSize()[0]) if self.exact_schur else {}
+        opts = PETSc.Options()
+        for name, value in chosen.items():  # read while the split sets up, then removed
+            opts[self.prefix + name] = value
+        try:
+            self.ksp.solve(b_free, x_free)
+        finally:
+            for name in chosen:
+                opts.delValue(self.prefix + name)
         reason = self.ksp.getConvergedReason()
+        if reason < 0 and self.exact_schur:
+            reason = self._solve_by_lu(A_free, b_free, x_free)
+        b.restoreSubVector(index_set, b_free)
         if reason < 0:
             raise SolveFailed(f"linear solve failed: {_REASONS.get(reason, reason)}")
         if not np.all(np.isfinite(x_free.getArray(readonly=True))):
@@ -126,6 +204,19 @@ class LinearSolver:
         x_free.copy(x_sub)
         x.restoreSubVector(index_set, x_sub)
         return x
+
+    def _solve_by_lu(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> int:
+        """Solve by MUMPS LU (:data:`DIRECT`, set here, not from the options); its converged reason."""
+        if self._fallback is None:
+            self._fallback = PETSc.KSP().create(self.comm)
+        self._fallback.reset()
+        self._fallback.setType(DIRECT["ksp_type"])
+        self._fallback.getPC().setType(DIRECT["pc_type"])
+        self._fallback.getPC().setFactorSolverType(DIRECT["pc_factor_mat_solver_type"])
+        self._fallback.setOperators(A)
+        self._fallback.solve(b, x)
+        self.fallbacks += 1
+        return self._fallback.getConvergedReason()
 
     def _splits(self, free: np.ndarray) -> list[tuple[str, PETSc.IS]]:
         """One index set per field, numbered as the rows of the free-dof submatrix."""
@@ -305,7 +396,7 @@ _ALLOWED_TYPES = {
 
 # Names offered as corrections of a misspelt option (not a limit on what may be given).
 _KNOWN_OPTIONS = sorted({
-    *DIRECT, *_DIRECT_PARALLEL, *ITERATIVE, "ksp_monitor", "ksp_view", "ksp_converged_reason", "ksp_gmres_restart",
+    *DIRECT, *_DIRECT_PARALLEL, *ITERATIVE, *EXACT, *_SCHUR_FACTOR_NAMES, "ksp_monitor", "ksp_view", "ksp_converged_reason", "ksp_gmres_restart",
     "pc_factor_mat_ordering_type", "mat_mumps_icntl_14", "mat_mumps_icntl_24", "pc_gamg_threshold",
     "pc_gamg_agg_nsmooths", "pc_hypre_boomeramg_strong_threshold", "fieldsplit_u_ksp_rtol",
     "fieldsplit_p_ksp_rtol", "fieldsplit_u_ksp_type", "fieldsplit_p_ksp_type", "pc_fieldsplit_type",

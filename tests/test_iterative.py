@@ -1,8 +1,10 @@
-"""The iterative solver (Schur fieldsplit + AMG, ``solver.linear = "iterative"``) against MUMPS.
+"""The solvers of the step against MUMPS LU of the whole system.
 
-One dam-break step from the shipped scene is taken by two solvers that differ only in
-``solver.linear``; the displacement increments and the pressures must agree to 1e-8
-relative. Runs on any number of ranks (the MPI suite repeats it on two).
+One dam-break step from the shipped scene is taken by solvers that differ only in their PETSc
+options: the iterative one (Schur fieldsplit + AMG, ``solver.linear = "iterative"``) must agree
+with LU to 1e-8 relative, the default exact Schur solve (one rank) to round-off; the package of
+the Schur complement's LU follows the size, and a failed Schur iteration is redone by LU.
+Runs on any number of ranks (the MPI suite repeats them on two).
 """
 
 from dataclasses import replace
@@ -12,6 +14,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
+from fempm import linear
 from fempm.scene import load_scene
 from fempm.simulation import build_solver
 
@@ -22,23 +25,89 @@ def _norm(a, comm):
     return np.sqrt(comm.allreduce(float(np.dot(a.ravel(), a.ravel()))))
 
 
+def _one_step(comm, linear_kind="direct", petsc=None, steps=1):
+    """The dam break after ``steps`` steps: (du, p) owned, and the step's linear solver."""
+    scene = load_scene(SCENE)
+    solver = build_solver(replace(scene, solver=replace(scene.solver, linear=linear_kind, petsc=petsc or {})), comm)
+    for _ in range(steps):
+        solver.step()
+    system = solver.system
+    owned = system.space.numbering.num_owned
+    return {name: system.U.field(name)[:owned].copy() for name in ("u", "p")}, system.linear_solver
+
+
+def _relative_difference(a, b, comm) -> float:
+    return max(_norm(a[name] - b[name], comm) / _norm(b[name], comm) for name in ("u", "p"))
+
+
 @pytest.mark.mpi
 def test_iterative_solver_reproduces_the_direct_step():
     comm = MPI.COMM_WORLD
+    lu, lu_solver = _one_step(comm, petsc=linear.DIRECT if comm.size == 1 else None)
+    iterative, solver = _one_step(comm, "iterative")
+    ksp = solver.ksp
+    assert (ksp.getType(), ksp.getPC().getType()) == ("fgmres", "fieldsplit") and ksp.getIterationNumber() > 2
+    assert lu_solver.ksp.getType() == "preonly"
+    assert _norm(lu["u"], comm) > 0
+    assert _relative_difference(iterative, lu, comm) <= 1e-8  # measured 8.4e-10
+
+
+@pytest.mark.mpi
+def test_default_solver_is_exact():
+    """One rank: the exact Schur solve, equal to MUMPS LU to round-off, PETSc's LU of S at this size
+    (the scene's ~800 free dofs); several ranks: LU (redundant MUMPS)."""
+    comm = MPI.COMM_WORLD
+    lu, _ = _one_step(comm, petsc=linear.DIRECT if comm.size == 1 else None, steps=3)
+    default, solver = _one_step(comm, steps=3)
+    assert _relative_difference(default, lu, comm) < 1e-12  # measured 1.4e-15 (0 on two ranks: the same solver)
+    if comm.size == 1:
+        assert solver.exact_schur and solver.ksp.getType() == "fgmres" and solver.fallbacks == 0
+        assert solver.ksp.getIterationNumber() <= 4  # measured 3
+        schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
+        assert (schur.getType(), schur.getFactorSolverType()) == ("lu", "petsc")
+    else:
+        assert not solver.exact_schur and solver.ksp.getType() == "preonly"
+
+
+def test_schur_factor_follows_the_size(monkeypatch):
+    comm = MPI.COMM_SELF
+    assert linear.schur_factor_options(linear.SMALL_SYSTEM)["fieldsplit_p_pc_factor_mat_solver_type"] == "petsc"
+    assert linear.schur_factor_options(linear.SMALL_SYSTEM + 1)["fieldsplit_p_pc_factor_mat_solver_type"] == "mumps"
+    small, _ = _one_step(comm)
+    monkeypatch.setattr(linear, "SMALL_SYSTEM", 0)
+    large, solver = _one_step(comm)
+    schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
+    assert schur.getFactorSolverType() == "mumps"
+    assert _relative_difference(large, small, comm) < 1e-12  # measured 4e-16
+    named, solver = _one_step(comm, petsc={"fieldsplit_p_pc_factor_mat_solver_type": "mumps"})
+    assert not solver.exact_schur  # a package the user names is kept, whatever the size
+
+
+def test_failed_schur_iteration_is_redone_by_lu():
+    comm = MPI.COMM_SELF
+    lu, _ = _one_step(comm, petsc=linear.DIRECT)
+    rescued, solver = _one_step(comm, petsc={"ksp_max_it": 1})  # the Schur iteration needs 3
+    assert solver.fallbacks == 1
+    assert _relative_difference(rescued, lu, comm) == 0.0
+
+
+def test_kept_pattern_takes_the_new_values():
+    """A second solve with the same matrix and free dofs keeps the pattern's set-up (orderings,
+    symbolic factorisations), yet solves with the matrix's new values, as a new solver would."""
+    comm = MPI.COMM_SELF
     scene = load_scene(SCENE)
-    steps = {}
-    for kind in ("direct", "iterative"):
-        solver = build_solver(replace(scene, solver=replace(scene.solver, linear=kind)), comm)
-        solver.step()
-        system = solver.system
-        owned = system.space.numbering.num_owned
-        steps[kind] = {name: system.U.field(name)[:owned].copy() for name in ("u", "p")}
-        ksp = system.linear_solver.ksp
-        steps[kind]["solver"] = (ksp.getType(), ksp.getPC().getType(), ksp.getIterationNumber())
-    ksp_type, pc_type, iterations = steps["iterative"]["solver"]
-    assert (ksp_type, pc_type) == ("fgmres", "fieldsplit") and iterations > 2
-    assert steps["direct"]["solver"][0] == "preonly"
-    for name in ("u", "p"):
-        direct, iterative = steps["direct"][name], steps["iterative"][name]
-        assert _norm(direct, comm) > 0
-        assert _norm(iterative - direct, comm) <= 1e-8 * _norm(direct, comm), name
+    solver = build_solver(scene, comm)
+    solver.step()
+    ls = solver.system.linear_solver
+    A, free = solver.region.matrix, ls._previous[1]
+    b = A.createVecLeft()
+    b.setArray(np.random.default_rng(1).standard_normal(b.getLocalSize()))
+    kept = ls.reuses
+    once = ls.solve(A, b, free).copy()
+    A.scale(2.0)
+    twice = ls.solve(A, b, free).copy()
+    assert ls.reuses == kept + 2
+    fresh = linear.LinearSolver(comm, "fempm_", fields=solver.system.space.fields).solve(A, b, free)
+    assert np.array_equal(twice.getArray(), fresh.getArray())  # measured: equal to the last bit
+    half = once.getArray() / 2
+    assert np.linalg.norm(twice.getArray() - half) <= 1e-12 * np.linalg.norm(half)  # measured 0 (the scaling is exact)

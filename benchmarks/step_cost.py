@@ -1,0 +1,166 @@
+"""The cost of one implicit step by phase, this checkout against another (main), side by side.
+
+Runs the seed's dam break (``--cells N``: N x N cells, 2 x 2 particles per cell in the column,
+N^2 / 2 particles) for ``--warm`` steps, then times ``--steps`` steps, phase by phase
+(``project`` = P2G, ``assemble``, ``solve``, ``update`` = G2P, ``relocate``, and the step's
+rest, Python between the phases), and splits the solve by PETSc's event log (free-dof and
+field-split extraction, symbolic and numeric LU, the Krylov iteration). Each version runs in its
+own process, the two alternating ``--rounds`` times, so that both see the same load; the table
+gives the median over the rounds of the CPU time per step (less sensitive to the shared
+machine's load than the wall time, which is given too) and the ratio this / other.
+
+    python benchmarks/step_cost.py --case 40:100:300 --case 236:60:10 --against ../main --page docs/speed-step.md
+
+A case is ``CELLS:WARM:STEPS`` (236 cells: 27,848 particles, the size of Tesserae.jl's dam
+break). ``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from
+DIR); ``--page`` writes the tables into a Markdown page (``benchmarks/templates/speed-step.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import pages
+
+PHASES = ("project", "assemble", "solve", "update", "relocate")
+#: PETSc events that split the solve (seconds summed over the run)
+EVENTS = {
+    "extract": ("MatCreateSubMat", "MatCreateSubMats"),
+    "LU symbolic": ("MatLUFactorSym",),
+    "LU numeric": ("MatLUFactorNum",),
+    "Schur product": ("MatMatMultSym", "MatMatMultNum", "MatAXPY"),
+    "Krylov": ("KSPSolve",),
+}
+
+
+def worker(cells: int, warm: int, steps: int, petsc: dict) -> dict:
+    """Time ``steps`` steps after ``warm``; phase and event CPU milliseconds per step."""
+    from mpi4py import MPI
+
+    import fempm  # noqa: F401  (imports dolfinx before petsc4py)
+    import fempm.timing
+
+    fempm.timing.time = SimpleNamespace(perf_counter=time.process_time)  # phases in CPU time
+    from petsc4py import PETSc
+
+    from fempm.cases import dambreak
+    from fempm.simulation import build_solver
+
+    changes = {"time.end": 10.0, "domain.cells": [cells, cells]}
+    if petsc:
+        changes["solver.petsc"] = petsc
+    scene = dambreak.scene(changes, files=False)
+    solver = build_solver(scene, MPI.COMM_WORLD)
+    for _ in range(warm):
+        solver.step()
+    solver.timings.clear()
+    PETSc.Log.begin()
+    events = {name: [PETSc.Log.Event(e) for e in names] for name, names in EVENTS.items()}
+    before = {name: sum(e.getPerfInfo()["time"] for e in evs) for name, evs in events.items()}
+    # phases: wall time per phase (PhaseTimes); the step's CPU time from the process clock
+    wall, cpu = time.perf_counter(), time.process_time()
+    for _ in range(steps):
+        solver.step()
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    per = 1e3 / steps
+    phases = {p: solver.timings.get(p, 0.0) * per for p in PHASES}
+    out = {"particles": len(solver.particles), "step wall": wall * per, "step cpu": cpu * per,
+           **phases, "rest": cpu * per - sum(phases.values())}
+    for name, evs in events.items():
+        out[name] = (sum(e.getPerfInfo()["time"] for e in evs) - before[name]) * per
+    out["free dofs"] = solver.system.linear_solver.ksp.getOperators()[0].getSize()[0]
+    out["pattern kept"] = getattr(solver.system.linear_solver, "reuses", 0)
+    return out
+
+
+def run(python: str, root: Path, case: tuple[int, int, int], petsc: dict) -> dict:
+    """One worker process with ``python`` importing fempm from ``root``."""
+    env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
+    cells, warm, steps = case
+    command = [python, str(Path(__file__).resolve()), "--worker", "--cells", str(cells), "--warm",
+               str(warm), "--steps", str(steps), "--petsc", json.dumps(petsc)]
+    done = subprocess.run(command, env=env, cwd=root, capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def median(values):
+    values = sorted(values)
+    n = len(values)
+    return 0.5 * (values[(n - 1) // 2] + values[n // 2])
+
+
+def compare(case: tuple[int, int, int], versions: dict, rounds: int) -> tuple[str, str]:
+    """Run the versions alternately; a heading line and the Markdown table of medians and ratios."""
+    cells, warm, steps = case
+    load_start = os.getloadavg()
+    results = {name: [] for name in versions}
+    for _ in range(rounds):
+        for name, (python, root, petsc) in versions.items():
+            results[name].append(run(python, root, case, petsc))
+    load_end = os.getloadavg()
+    keys = ["step cpu", "step wall", *PHASES, "rest", *EVENTS]
+    table = {name: {k: median([r[k] for r in rs]) for k in keys} for name, rs in results.items()}
+    first = results["this"][0]
+    heading = (f"{cells}² cells, {first['particles']} particles ({first['free dofs']} free dofs at the last step), "
+               f"{steps} steps timed after {warm}, {rounds} alternating rounds; load average "
+               f"{', '.join(f'{x:.2f}' for x in load_start)} at the start, "
+               f"{', '.join(f'{x:.2f}' for x in load_end)} at the end; solves that kept the last one's "
+               f"pattern: " + ", ".join(f"{name} {rs[0]['pattern kept']}" for name, rs in results.items()))
+    label = {"step cpu": "step, CPU", "step wall": "step, wall", "rest": "rest (Python between phases)",
+             **{k: f"solve: {k} (wall)" for k in EVENTS}}
+    rows = []
+    for k in keys:
+        row = [label.get(k, k)] + [f"{table[name][k]:.3f}" for name in versions]
+        if "other" in versions:
+            row.append(f"{table['this'][k] / table['other'][k]:.2f}" if table["other"][k] > 0 else "—")
+        rows.append(row)
+    head = ["ms per step", *versions] + (["this / other"] if "other" in versions else [])
+    return heading, pages.table(head, rows)
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--case", action="append", type=lambda t: tuple(int(v) for v in t.split(":")),
+                        metavar="CELLS:WARM:STEPS", help="a case (repeatable; default 40:100:300)")
+    parser.add_argument("--rounds", type=int, default=3, help="runs of each version, alternating (default 3)")
+    parser.add_argument("--against", type=Path, default=None, help="a checkout to compare with (its .venv)")
+    parser.add_argument("--petsc", default="{}", help="PETSc options (JSON) for this checkout's runs")
+    parser.add_argument("--page", type=Path, default=None, help="write the tables into this Markdown page")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--cells", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--warm", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--steps", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        print(json.dumps(worker(args.cells, args.warm, args.steps, json.loads(args.petsc))))
+        return
+    here = Path(__file__).resolve().parents[1]
+    versions = {"this": (sys.executable, here, json.loads(args.petsc))}
+    if args.against:
+        versions["other"] = (str(args.against.resolve() / ".venv" / "bin" / "python"), args.against.resolve(), {})
+    sections = []
+    for case in args.case or [(40, 100, 300)]:
+        heading, text = compare(case, versions, args.rounds)
+        print(heading + "\n\n" + text + "\n", flush=True)
+        sections.append(f"### {heading}\n\n{text}\n")
+    if args.page:
+        other = f"`{args.against}` (commit {_commit(args.against)})" if args.against else "none"
+        command = "python benchmarks/step_cost.py " + " ".join(sys.argv[1:])
+        pages.write(args.page, pages.fill("speed-step.md", command=command, other=other, tables="\n".join(sections),
+                                          **pages.provenance()))
+
+
+def _commit(root: Path) -> str:
+    done = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True)
+    return done.stdout.strip() or "?"
+
+
+if __name__ == "__main__":
+    main()
