@@ -98,7 +98,8 @@ parser = argparse.ArgumentParser(description="The seed's dam break (see the file
                                  epilog="-fempm_NAME [VALUE]: PETSc options of the linear solve")
 dambreak.add_flags(parser)
 flag = parser.add_argument
-flag("--dt", dest="time.dt", type=float, metavar="DT", help="time step, s (scene: 1e-3)")
+flag("--dt", dest="time.dt", type=float, metavar="DT", help="time step, s, or its bound with --courant")
+flag("--courant", dest="time.courant", type=float, metavar="C", help="adaptive step: max |v| dt / h = C")
 flag("--alpha", dest="solver.volume_correction", type=float, metavar="ALPHA", help="volume correction (scene: 0.1)")
 flag("--no-volume-correction", dest="solver.volume_correction", action="store_const", const=0.0)
 flag("--no-pspg", dest="solver.pspg", action="store_const", const=False, help="PSPG off (the run then fails)")
