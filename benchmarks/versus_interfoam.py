@@ -2,8 +2,8 @@
 
 Runs interFoam (``benchmarks/interfoam.py``: the same tank, column and walls, VOF with air)
 at 40² and 80² cells (and 160² with ``--full``), and fempm's ``scenes/dambreak.toml`` as it
-stands and at a finer setting (80², 2 x 2 particles per cell), each to 2 s of flow, one after
-the other on one core. The accuracy measure is the surge front's RMS relative difference from
+stands, with an adaptive step (Courant 0.5, dt <= 2 ms) and at a finer setting (80², 2 x 2
+particles per cell), each to 2 s of flow, one after the other on one core. The accuracy measure is the surge front's RMS relative difference from
 interFoam's converged 160² front over 0.3 < T <= 3 (``fempm.references.front_difference``; the
 stored reference, or this invocation's own 160² run with ``--full``), i.e. over the first
 0.27 s. Prints a table (grid, steps, wall time, front difference) and each code's wall time
@@ -53,6 +53,7 @@ SCENE = ROOT / "scenes" / "dambreak.toml"
 END_TIME, QUICK_END_TIME = 2.0, 0.27     # s of flow; the front measure needs t <= 0.27 s
 TARGETS = (0.025, 0.012)                 # front differences at which the wall times are compared
 FEMPM_FINER = (80, 4)                    # cells per side, particles per cell
+FEMPM_ADAPTIVE = {"courant": 0.5, "dt": 2e-3}  # the scene's grid with an adaptive step (dt its bound)
 STORED = (40, 80, 160)                   # grids of the stored interFoam fronts
 
 
@@ -85,8 +86,10 @@ def interfoam_row(cells: int, end_time: float) -> Row:
     return Row("interFoam", cells, None, r.steps, r.wall_s, r.cpu_s, None, front, note=note)
 
 
-def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int | None = None) -> Row:
-    """The dam-break scene (its grid and particles changed when given) run through the public API."""
+def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int | None = None,
+              step: dict | None = None) -> Row:
+    """The dam-break scene (its grid, particles and [time] keys changed when given) run through the
+    public API."""
     from fempm.scene import parse_scene
     from fempm.simulation import run_scene
 
@@ -98,7 +101,7 @@ def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int
         data["bodies"] = [{**b, "particles_per_cell": particles_per_cell} for b in data["bodies"]]
     folder = Path(tempfile.mkdtemp(prefix="fempm-versus-interfoam-"))
     try:
-        data["time"] = {**data["time"], "end": end_time}
+        data["time"] = {**data["time"], **(step or {}), "end": end_time}
         data["output"] = {"folder": str(folder), "progress": False}  # histories and summary only
         scene = parse_scene(data, source=SCENE)
         start, start_cpu = time.perf_counter(), time.process_time()
@@ -111,7 +114,9 @@ def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int
     if summary["status"] != "completed":
         print(f"versus_interfoam: fempm run ended {summary['status']}: {summary['cause']}", flush=True)
     return Row("fempm", scene.domain.shape[0], scene.bodies[0].particles_per_cell, summary["steps"], wall, cpu,
-               summary["wall_time_s"], dimensionless_front(t, x), note=f"{summary['particles']} particles")
+               summary["wall_time_s"], dimensionless_front(t, x),
+               note=(f"adaptive step, C = {step['courant']:g}, dt <= {step['dt']:g} s; " if step else "")
+               + f"{summary['particles']} particles")
 
 
 # -- equal error -----------------------------------------------------------------------------------
@@ -186,7 +191,8 @@ def plot(rows: list[Row], path: Path, reference: str):
             ax.plot([r.cpu_s for r in runs], err, "--", marker=marker, color=colour, mfc="none",
                     label=f"{code}, CPU time")
             for r in runs:
-                ax.annotate(f"{r.cells}²" + (f", {r.particles_per_cell} ppc" if r.particles_per_cell else ""),
+                ax.annotate(f"{r.cells}²" + (f", {r.particles_per_cell} ppc" if r.particles_per_cell else "")
+                            + (", adaptive" if r.note.startswith("adaptive") else ""),
                             (r.wall_s, 100 * r.error), textcoords="offset points", xytext=(5, 4), fontsize=8)
     for e in TARGETS:
         ax.axhline(100 * e, color="grey", lw=0.6, ls=":")
@@ -269,6 +275,7 @@ def run_all(quick: bool, full: bool) -> tuple[list[Row], str, str, str | None]:
         print(f"versus_interfoam: interFoam {cells}²: {rows[-1].steps} steps, {rows[-1].wall_s:.1f} s", flush=True)
     rows.append(fempm_row(end_time))
     if not quick:
+        rows.append(fempm_row(end_time, step=FEMPM_ADAPTIVE))
         rows.append(fempm_row(end_time, *FEMPM_FINER))
     reference = "interFoam 160²"
     ref, reference_long = interfoam_front(160), "the stored interFoam 160² front (`fempm.references.interfoam_front(160)`)"
