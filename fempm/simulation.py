@@ -199,6 +199,7 @@ def recorder_for(scene: Scene, solver, extra: dict | None = None) -> Recorder:
     return Recorder(solver, RecorderOptions(
         folder=Path(o.folder), particles_interval=o.particles_interval, grid_interval=o.grid_interval,
         snapshot_times=o.snapshots, final_snapshot=o.final_snapshot, pressure_scale=o.pressure_scale,
+        gauges=tuple((g.gauge(), g.interval) for g in scene.gauges),
         extra={"scene": scene.name, "dt": solver.dt, **(extra or {})},
     ))
 
