@@ -34,7 +34,8 @@ from fempm import transfer
 from fempm.errors import InputError
 from fempm.space import GridFunction, Space
 
-__all__ = ["DRY_FRACTION", "LevelGauge", "PressureGauge", "Sampler", "UNITS", "sample", "wet_fraction"]
+__all__ = ["DRY_FRACTION", "LevelGauge", "PressureGauge", "Sampler", "UNITS", "WetFraction", "sample",
+           "wet_fraction"]
 
 #: Points whose wet fraction is below this are dry (pressure gauges read NaN there).
 DRY_FRACTION = 0.5
@@ -66,6 +67,22 @@ def wet_fraction(particles, integrals: np.ndarray, out: GridFunction) -> GridFun
     transfer.particles_to_grid(out.space, particles, particles["volume"], out=out)
     out.values[:, 0] /= integrals[out.space.numbering.local_functions]
     return out
+
+
+class WetFraction:
+    """The wet fraction of a basis's functions from particles, into one grid function reused
+    (the normalisation taken from the particles at the first call)."""
+
+    def __init__(self, basis):
+        self.basis = basis
+        self.field = GridFunction(Space(basis, {"phi": 1}), "wet_fraction")
+        self._integrals = None
+
+    def __call__(self, particles) -> GridFunction:
+        """:func:`wet_fraction` now (collective)."""
+        if self._integrals is None:
+            self._integrals = transfer.density_normalisation(self.basis, particles)
+        return wet_fraction(particles, self._integrals, self.field)
 
 
 class _Points:
@@ -112,8 +129,7 @@ class Sampler:
                 raise InputError(f"gauges.{g.name}: the point {tuple(x.tolist())} is outside the grid "
                                  f"[{grid.lower[0]:g}, {grid.upper[0]:g}] x [{grid.lower[1]:g}, {grid.upper[1]:g}]")
         self.basis = basis
-        self._phi = GridFunction(Space(basis, {"phi": 1}), "wet_fraction")
-        self._integrals = None  # of the particles' seeding lattice, at the first sample
+        self._wet = WetFraction(basis)
         self._pressure = [g for g in self.gauges if isinstance(g, PressureGauge)]
         self._level = [g for g in self.gauges if isinstance(g, LevelGauge)]
         inner = (grid.lower + grid.h / 2, grid.upper - grid.h / 2)  # where phi is read, see the module
@@ -135,9 +151,7 @@ class Sampler:
 
     def sample(self, solver) -> dict[str, float]:
         """The gauges' readings now, by name (the same on every rank; collective)."""
-        if self._integrals is None:
-            self._integrals = transfer.density_normalisation(self.basis, solver.particles)
-        phi = wet_fraction(solver.particles, self._integrals, self._phi)
+        phi = self._wet(solver.particles)
         local = np.concatenate([self._wet_points.local(phi), self._points.local(solver.pressure),
                                 self._lines.local(phi)])
         total = self.comm.allreduce(local)

@@ -22,7 +22,7 @@ from mpi4py import MPI
 
 from fempm import diagnostics, output
 from fempm.errors import SimulationDiverged
-from fempm.gauges import UNITS, Sampler
+from fempm.gauges import UNITS, Sampler, WetFraction
 from fempm.output import OutputError
 from fempm.progress import Progress
 from fempm.stepper import TIME_TOLERANCE
@@ -100,6 +100,7 @@ class Recorder:
         self.snapshots_due = Schedule(times=options.snapshot_times)
         self.particle_series = output.ParticleSeries(self.folder) if options.particles_interval else None
         self.grid_series = output.GridSeries(self.folder, solver.basis) if options.grid_interval else None
+        self._wet = WetFraction(solver.basis) if options.grid_interval else None  # grid pressure only where wet
         self.wall_before, self.phases_before = 0.0, {}  # of the earlier parts of a resumed run
         self.gauges = Sampler([g for g, _ in options.gauges], solver.basis) if options.gauges else None
         self.gauges_due = [Schedule(interval) if interval else None for _, interval in options.gauges]
@@ -143,7 +144,7 @@ class Recorder:
         if self.particle_series and self.particles_due.due(t):
             self.particle_series.write(particles, t)
         if self.grid_series and self.grid_due.due(t):
-            self.grid_series.write(s.velocity, s.pressure, t)
+            self.grid_series.write(s.velocity, s.pressure, t, wet=self._wet(particles))
         due = [schedule is None or schedule.due(t) for schedule in self.gauges_due]
         if any(due):
             readings = self.gauges.sample(s)

@@ -68,3 +68,19 @@ def test_gauges_outside_the_grid_or_named_twice_are_refused(gauges, message):
     grid = fempm.Grid.from_cells(MPI.COMM_WORLD, (0.0, 0.0), (L, 4 * L), (10, 40))
     with pytest.raises(InputError, match=message):
         Sampler(gauges, fempm.BSpline2(grid))
+
+
+def test_the_grid_pressure_is_written_only_where_wet(tmp_path):
+    import pyvista as pv
+
+    from fempm.gauges import WetFraction
+    from fempm.output import GridSeries
+
+    solver = column(steps=2)
+    series = GridSeries(tmp_path, solver.basis)
+    series.write(solver.velocity, solver.pressure, solver.time, wet=WetFraction(solver.basis)(solver.particles))
+    if MPI.COMM_WORLD.rank == 0:
+        image = pv.read(tmp_path / series.entries[0][1])
+        y, p = np.asarray(image.points)[:, 1], np.asarray(image.point_data["pressure"])
+        assert np.all(np.isfinite(p[y < H - 0.005])) and np.all(np.isnan(p[y > H + 0.005]))
+        assert np.nanmin(p) > 0  # measured 69 Pa at the highest wet node (y = 0.2847 m): no dry tail
