@@ -22,9 +22,9 @@ Ito & Kunisch 2002), lagged by one step so that a step costs one solve: after a 
 that pull are released and free dofs that moved into the wall are held; the next step starts
 from that set, with the dofs that were dry held and those whose projected velocity enters the
 wall held. On a no-slip wall the tangential dof of a function is held and released with its
-normal one. Where the step's water has no free surface (no pressure dof held at zero: a full
-box or channel, whose pressure level a pin or an outflow fixes) a reaction has no sign to
-separate by, and every wall dof stays held (two-sided). Moving walls and obstacles are always held.
+normal one. Where the step's water has no free surface (every function has material in its
+support: a full box or channel, whose pressure level a pin or an outflow fixes) a reaction has
+no sign to separate by, and every wall dof stays held (two-sided). Moving walls and obstacles are always held.
 """
 
 from __future__ import annotations
@@ -69,6 +69,7 @@ class Walls:
         self._owned = owned
         self._contact_of(owned)
         self.one_sided = True
+        self.free_surface = False  # in this step (see start_step)
         self.released = 0
         self._state = {}
         self.stops = 0
@@ -122,14 +123,15 @@ class Walls:
 
         ``keep``: boolean per owned dof of the space, the dofs the step keeps (material in the
         function's support); ``velocity``: the projected grid velocity (two components). With a
-        free surface (some pressure dof not kept, on any rank) the last step's active set, with
-        the dofs that were dry then held, and those whose projected velocity enters the wall
-        faster than ``SPEED_TOLERANCE sqrt(|g| h)``; without one, every wall dof.
+        free surface (some function without material, on any rank: air in the tank) the last
+        step's active set, with the dofs that were dry then held, and those whose projected
+        velocity enters the wall faster than ``SPEED_TOLERANCE sqrt(|g| h)``; without, every wall dof.
         """
         if not self.one_sided or self.space.comm.allreduce(len(self.normal)) == 0:
             return
-        pressure = keep.reshape(-1, self.space.bs)[:, self.space.field_offset("p")]
-        if self.space.comm.allreduce(int(np.count_nonzero(~pressure))) == 0:
+        dry = ~keep.reshape(-1, self.space.bs)[:, self.space.field_offset(self.field)]
+        self.free_surface = self.space.comm.allreduce(int(np.count_nonzero(dry))) > 0
+        if not self.free_surface:
             self.active[:] = True
         else:
             bs, first = self.space.bs, self.space.field_offset(self.field)
@@ -147,7 +149,10 @@ class Walls:
         ``reaction``: the residual at the owned dofs at the solution; ``displacement``: the
         solved ``du`` at the owned dofs.
         """
-        if not self.one_sided or len(self.normal) == 0:
+        if not self.one_sided or self.space.comm.allreduce(len(self.normal)) == 0:
+            return
+        if not self.free_surface:  # two-sided this step; the state as start_step left it
+            self._gather_state()
             return
         force, motion = self.tolerances(density, dt)
         pull = self.active & (reaction[self.normal] * self.sign > force)
