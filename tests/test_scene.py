@@ -191,7 +191,7 @@ BAD_SCENES = [
      r"gauges\[3\].position = \[0.6, 0.0584\]: outside the domain \[0.0, 0.0\]..\[0.584, 0.584\] \(m\)"),
     ("two gauges of one name", _edit('name = "right_y0.0146"', 'name = "right_y0.005"'), [],
      r"gauges\[1\].name = 'right_y0.005': gauges\[0\] has that name; names must be unique"),
-    ("gauge interval not whole steps", _edit("interval = 0.01 ", "interval = 0.0105"), [],
+    ("gauge interval not whole steps", _edit("x = 0.292 ", "x = 0.292\ninterval = 0.0105\n#"), [],
      r"gauges\[4\].interval = 0.0105 is not a whole number of steps of time.dt = 0.001 \(10.5\)"),
     ("output folder name too long", _edit('folder = "results/dambreak"', f'folder = "{"a" * 300}"'), [],
      r"output.folder: a name of 300 characters is too long for the file system \(a part of 300 bytes; at most 255"),
