@@ -51,6 +51,7 @@ STUDY = [
     ("dt", "dt 5e-4", {"time.dt": 5e-4}),
     ("fine", "80² cells", {"domain.cells": [80, 80]}),
     ("pic", "PIC 2 %", {"solver.pic_blend": 0.02}),
+    ("surface_aware", "surface-aware volume correction", {"solver.surface_aware": True}),
     ("no_pspg", "no PSPG", {"solver.pspg": False}),
 ]
 

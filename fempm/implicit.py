@@ -20,6 +20,7 @@ from mpi4py import MPI
 
 from fempm import transfer
 from fempm.bases import Basis
+from fempm.density import DensityError
 from fempm.options import Controls, Physics, Scheme
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
@@ -71,6 +72,7 @@ class ImplicitSolver(Stepper):
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
         self._reference_density = self.grid.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
+        self._density_error = DensityError(s.scalar_space)
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
@@ -111,6 +113,8 @@ class ImplicitSolver(Stepper):
         rho = s.fields["smoothed_density"].values
         rho[:] = transfer.smoothed_density(m, self._integrals[:, None])
         fraction = rho / self._reference_density
+        if self.scheme.alpha > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
+            s.fields["density_error"].values[:, 0] = self._density_error(fraction[:, 0])
         moving = (m > 0) & (fraction >= c.min_support_fraction)
         safe = np.where(moving, m, 1.0)
         s.fields["grid_velocity"].values[:] = np.where(moving, p2g.field("mv") / safe, 0.0)

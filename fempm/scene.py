@@ -165,6 +165,7 @@ class Solver:
     linear: str = key(choice("direct", "iterative"), "direct")
     pspg: bool = key(boolean, True)
     volume_correction: float = key(fraction, Scheme.alpha)
+    surface_aware: bool = key(boolean, Scheme.surface_aware)
     pic_blend: float = key(fraction, Scheme.pic_blend)
     newmark_beta: float = key(in_range(0, 0.5), Scheme.beta)
     newmark_gamma: float = key(in_range(0, 1), Scheme.gamma)

@@ -54,7 +54,7 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     basis, particles = build_material(scene, comm)
     physics = Physics(viscosity=fluid.viscosity, gravity=scene.gravity, walls=asdict(scene.walls))
     scheme = Scheme(dt=scene.time.dt, courant=scene.time.courant, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,
-                    pspg=sv.pspg, pic_blend=sv.pic_blend, forms=sv.forms)
+                    surface_aware=sv.surface_aware, pspg=sv.pspg, pic_blend=sv.pic_blend, forms=sv.forms)
     controls = Controls(petsc_options=petsc, pressure_limit=pressure_limit(scene, particles))
     # The forms are compiled here: their mistakes name the file, and a stop request waits until the
     # compiler is done (stopped half-way, FFCx leaves its cache waiting for the compile).

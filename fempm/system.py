@@ -76,12 +76,14 @@ class GridSystem:
             "grid_velocity": GridFunction(self.vector_space, "grid_velocity"),
             "grid_acceleration": GridFunction(self.vector_space, "grid_acceleration"),
             "smoothed_density": GridFunction(self.scalar_space, "smoothed_density"),
+            "density_error": GridFunction(self.scalar_space, "density_error"),  # fempm.density.DensityError
         }
         self.velocity = GridFunction(self.vector_space, "velocity")
         self.pressure = GridFunction(self.scalar_space, "pressure")
         self.constants = {
             "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
             "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.alpha, "pspg": float(scheme.pspg),
+            "surface_aware": float(scheme.surface_aware),
             "convection": float(convection),
         }
         self.walls = Walls(self.space, physics)
