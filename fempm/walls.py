@@ -79,13 +79,16 @@ class Walls:
         """The normal dofs of slip and no-slip sides at rest (positions among the owned dofs), the
         outward normal's sign of each and its no-slip tangential partner (position, or -1)."""
         space = self.space
-        normal, sign, partner = [], [], []
+        normal, sign, partner, orphans = [], [], [], []
         for side, kind in self.conditions.items():
             if kind not in ("slip", "no-slip") or side in self.physics.wall_speeds:
                 continue
             component, outward = _NORMALS[side]
             dofs = space.wall_dofs(self.field, component, side[0])
-            dofs = dofs[~np.isin(dofs, self._fixed)]
+            held = np.isin(dofs, self._fixed)  # held for another reason (an outflow side's, an obstacle's)
+            if kind == "no-slip":  # their tangential partners stay held too
+                orphans.append(dofs[held] + (1 - 2 * component))
+            dofs = dofs[~held]
             tangential = dofs + (1 - 2 * component)  # the other component of the same function
             pair = np.where(np.isin(tangential, self._fixed) | (kind == "slip"), -1,
                             np.searchsorted(owned, tangential))
@@ -94,6 +97,9 @@ class Walls:
             partner.append(pair)
         join = lambda parts, dtype: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)  # noqa: E731
         self.normal, self.sign, self.partner = join(normal, np.int64), join(sign, float), join(partner, np.int64)
+        orphans = np.setdiff1d(join(orphans, np.int64), self._fixed)
+        self._fixed = np.concatenate([self._fixed, orphans])
+        self._fixed_values = np.concatenate([self._fixed_values, np.zeros(len(orphans))])
         self.active = np.ones(len(self.normal), dtype=bool)  # held now
         self.wet = np.zeros(len(self.normal), dtype=bool)  # material in the function's support last step
 
@@ -201,7 +207,8 @@ class Walls:
                     moving.append(dofs)
                     speeds.append(np.full(len(dofs), float(self.physics.wall_speeds[side])))
                 else:
-                    (contact if side not in self.physics.wall_speeds else held).append(dofs)
+                    at_rest_wall = kind in ("slip", "no-slip") and side not in self.physics.wall_speeds
+                    (contact if at_rest_wall else held).append(dofs)
         at_rest = np.unique(np.concatenate(held + contact))
         moving, speeds = (np.concatenate(a) if a else np.zeros(0) for a in (moving, speeds))
         moving, first = np.unique(moving, return_index=True)  # two moving sides meet: the first named
