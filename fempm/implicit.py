@@ -20,6 +20,7 @@ from mpi4py import MPI
 
 from fempm import transfer
 from fempm.bases import Basis
+from fempm.density import DensityError
 from fempm.options import Controls, Physics, Scheme
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
@@ -72,6 +73,7 @@ class ImplicitSolver(Stepper):
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
         self._reference_density = self.grid.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
+        self._density_error = DensityError(s.scalar_space)
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
@@ -83,6 +85,9 @@ class ImplicitSolver(Stepper):
         with self.timings("project"):
             free = self.project()
         self.system.solve(self.forms, free, self.region.matrix, self.particles)
+        if self.walls.one_sided:  # one-sided walls: the next step's held set (fempm.walls)
+            self.walls.update(self.system.reaction(self.forms, self.particles), self.system.U.vector.array,
+                              self._reference_density, dt)
         with self.timings("update"):
             self.update()
         with self.timings("relocate"):
@@ -107,16 +112,19 @@ class ImplicitSolver(Stepper):
         rho = s.fields["smoothed_density"].values
         rho[:] = transfer.smoothed_density(m, self._integrals[:, None])
         fraction = rho / self._reference_density
+        if self.scheme.alpha > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
+            s.fields["density_error"].values[:, 0] = self._density_error(fraction[:, 0])
         moving = (m > 0) & (fraction >= c.min_support_fraction)
         safe = np.where(moving, m, 1.0)
         s.fields["grid_velocity"].values[:] = np.where(moving, p2g.field("mv") / safe, 0.0)
         s.fields["grid_acceleration"].values[:] = np.where(moving, p2g.field("ma") / safe, 0.0)
-        s.impose_walls()
         owned = s.scalar_space.numbering.num_owned
         fraction = fraction[:owned, 0]
         keep = np.repeat(fraction >= c.min_support_fraction, s.space.bs).reshape(-1, s.space.bs)
         enough = p2g.field("count")[:owned, 0] >= -(-self.basis.functions_per_cell // 3)
         keep[:, s.space.field_slice("p")] &= ((fraction >= c.min_pressure_support) & enough)[:, None]
+        s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs
+        s.impose_walls()
         return s.free.select(keep.ravel())
 
     def update(self):
@@ -156,24 +164,28 @@ class ImplicitSolver(Stepper):
         return self.grid.h
 
     def clock_state(self) -> dict:
-        """The clock's, and the energy watch's start and lowest energy."""
+        """The clock's, the energy watch's start and lowest energy, and the walls' active set."""
         watch = self.check_energy
-        return {**super().clock_state(), "energy": [watch.start, watch.lowest] if watch else None}
+        return {**super().clock_state(), "energy": [watch.start, watch.lowest] if watch else None,
+                **self.walls.contact_state()}
 
     def restore_clock(self, state: dict):
         """Continue from a :meth:`clock_state`."""
         super().restore_clock(state)
+        self.walls.restore_contact(state)
         if self.check_energy and state.get("energy"):
             self.check_energy.start, self.check_energy.lowest = state["energy"]
 
     def save(self):
         """The particles, the walls' stop count and the energy watch's lowest energy."""
-        return (self.particles.state(), self.walls.stops, self.check_energy.lowest if self.check_energy else None)
+        return (self.particles.state(), self.walls.stops, self.check_energy.lowest if self.check_energy else None,
+                (self.walls.active.copy(), self.walls.wet.copy()))
 
     def restore(self, saved):
         """Back to a :meth:`save`."""
-        particles, self.walls.stops, lowest = saved
+        particles, self.walls.stops, lowest, (active, wet) = saved
         self.particles.restore(particles)
+        self.walls.active, self.walls.wet = active.copy(), wet.copy()
         if self.check_energy:
             self.check_energy.lowest = lowest
 

@@ -94,6 +94,8 @@ class Scheme:
         courant: an adaptive step ``dt = C h / max |v_p|`` with this C (None: the step is ``dt``).
         beta, gamma: Newmark parameters (1/4, 1/2: the trapezoidal rule).
         alpha: volume-correction factor of method.md eq. (3), 0 <= alpha <= 1 (0: left out).
+        surface_aware: the volume correction's density error of both signs deep in the water,
+            crowding only along a free surface (:mod:`fempm.density`); False: crowding only, everywhere.
         pspg: PSPG stabilisation (method.md: without it the run diverges).
         transfer: how velocity and acceleration go between particles and grid, one of
             :data:`TRANSFERS` (:mod:`fempm.transfer`): ``flip`` (FLIP increments blended with PIC,
@@ -116,6 +118,7 @@ class Scheme:
     beta: float = 0.25
     gamma: float = 0.5
     alpha: float = 0.1
+    surface_aware: bool = False
     pspg: bool = True
     transfer: str = "affine-flip"
     pic_blend: float = 0.0

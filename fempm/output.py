@@ -35,6 +35,7 @@ __all__ = [
     "atomic_path",
     "earlier_outputs",
     "gather_particles",
+    "plot_gauges",
     "prepare_folder",
     "remove_earlier_outputs",
     "snapshot",
@@ -301,10 +302,19 @@ class GridSeries(_Series):
         self.xi = np.column_stack([a[mine] / k - i[mine], b[mine] / k - j[mine]])
         self.comm = grid.comm
 
-    def write(self, velocity, pressure, t: float):
-        """Write grid functions ``velocity`` (2 components) and ``pressure`` at time ``t``."""
-        local = (self.nodes, velocity.evaluate(self.cells, self.xi)[:, 0, :],
-                 pressure.evaluate(self.cells, self.xi)[:, 0, 0])
+    def write(self, velocity, pressure, t: float, wet=None):
+        """Write grid functions ``velocity`` (2 components) and ``pressure`` at time ``t``.
+
+        With ``wet``, a scalar grid function of the wet fraction (:class:`fempm.gauges.WetFraction`),
+        the pressure is NaN (blank in ParaView) where it is below :data:`fempm.gauges.DRY_FRACTION`:
+        the B-spline pressure reaches a cell or so past the water, where it means nothing. The
+        particles' pressure (``particles_*.vtp``) is the primary output."""
+        p = pressure.evaluate(self.cells, self.xi)[:, 0, 0]
+        if wet is not None:
+            from fempm.gauges import DRY_FRACTION
+
+            p = np.where(wet.evaluate(self.cells, self.xi)[:, 0, 0] >= DRY_FRACTION, p, np.nan)
+        local = (self.nodes, velocity.evaluate(self.cells, self.xi)[:, 0, :], p)
         parts = self.comm.gather(local, root=0)
         error = None
         if self.comm.rank == 0:
@@ -405,6 +415,38 @@ class GridSeries(_Series):
             return _cannot_write(final, f"it needs about {needed / 1e6:.3g} MB and the disk has {free / 1e6:.3g} MB "
                                         f"free (the .vti series holds the same fields)")
         return None
+
+
+def plot_gauges(path: str | Path, header: list[str], rows, units: list[str]):
+    """``gauges.png``: each gauge's reading against time, one panel per unit (rank 0 calls it).
+
+    ``header`` is ``["t_s", gauge columns...]``, ``rows`` the table (NaN: dry, drawn as a gap;
+    None: not sampled then, skipped), ``units`` the unit of each gauge column.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sampled = np.array([[v is not None for v in row] for row in rows], dtype=bool).reshape(-1, len(header))
+    table = np.array([[np.nan if v is None else v for v in row] for row in rows], dtype=float).reshape(sampled.shape)
+    kinds = sorted(set(units), key=units.index)
+    fig, axes = plt.subplots(len(kinds), 1, figsize=(7, 2.8 * len(kinds)), sharex=True, squeeze=False)
+    for ax, unit in zip(axes[:, 0], kinds):
+        for k, (name, u) in enumerate(zip(header[1:], units)):
+            if u == unit:
+                rows_k = sampled[:, k + 1]
+                ax.plot(table[rows_k, 0], table[rows_k, k + 1], lw=0.8, label=name)
+        ax.set_ylabel({"Pa": "pressure (Pa)", "m": "level (m)"}.get(unit, unit))
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=2)
+    axes[-1, 0].set_xlabel("t (s)")
+    fig.tight_layout()
+    try:
+        with atomic_path(path, _PNG_COMPLETE) as tmp:
+            fig.savefig(tmp, dpi=110, format="png")
+    finally:
+        plt.close(fig)
 
 
 def _size(folder: Path) -> int:

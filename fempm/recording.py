@@ -22,6 +22,7 @@ from mpi4py import MPI
 
 from fempm import diagnostics, output
 from fempm.errors import SimulationDiverged
+from fempm.gauges import UNITS, Sampler, WetFraction
 from fempm.output import OutputError
 from fempm.progress import Progress
 from fempm.stepper import TIME_TOLERANCE
@@ -68,6 +69,8 @@ class RecorderOptions:
         snapshot_times: times of PNG pictures of the particles coloured by pressure.
         final_snapshot: a picture of the last state.
         pressure_scale: colour range of the pictures, Pa.
+        gauges: ``(gauge, interval)`` pairs (:mod:`fempm.gauges`; interval in seconds, None: every
+            step), written to ``gauges.csv`` and ``gauges.png``.
         extra: entries added to the summary.
 
     ``front.csv``, ``volume.csv`` and ``summary.json`` are always written.
@@ -79,6 +82,7 @@ class RecorderOptions:
     snapshot_times: tuple[float, ...] = ()
     final_snapshot: bool = False
     pressure_scale: tuple[float, float] | None = None
+    gauges: tuple = ()
     extra: dict = field(default_factory=dict)
 
 
@@ -96,7 +100,11 @@ class Recorder:
         self.snapshots_due = Schedule(times=options.snapshot_times)
         self.particle_series = output.ParticleSeries(self.folder) if options.particles_interval else None
         self.grid_series = output.GridSeries(self.folder, solver.basis) if options.grid_interval else None
+        self._wet = WetFraction(solver.basis) if options.grid_interval else None  # grid pressure only where wet
         self.wall_before, self.phases_before = 0.0, {}  # of the earlier parts of a resumed run
+        self.gauges = Sampler([g for g, _ in options.gauges], solver.basis) if options.gauges else None
+        self.gauges_due = [Schedule(interval) if interval else None for _, interval in options.gauges]
+        self.gauge_rows: list[list] = []  # (t, reading of each gauge; NaN: dry; None: not due then)
         self._started = None
 
     def start_clock(self):
@@ -121,7 +129,8 @@ class Recorder:
 
     def next_time(self, t: float) -> float:
         """The first time after ``t`` at which a file is due (``inf``: none)."""
-        return min(schedule.after(t) for schedule in (self.particles_due, self.grid_due, self.snapshots_due))
+        schedules = [self.particles_due, self.grid_due, self.snapshots_due, *filter(None, self.gauges_due)]
+        return min(schedule.after(t) for schedule in schedules)
 
     def record(self):
         """Take the measures of the current state; write the files due at this time."""
@@ -135,7 +144,11 @@ class Recorder:
         if self.particle_series and self.particles_due.due(t):
             self.particle_series.write(particles, t)
         if self.grid_series and self.grid_due.due(t):
-            self.grid_series.write(s.velocity, s.pressure, t)
+            self.grid_series.write(s.velocity, s.pressure, t, wet=self._wet(particles))
+        due = [schedule is None or schedule.due(t) for schedule in self.gauges_due]
+        if any(due):
+            readings = self.gauges.sample(s)
+            self.gauge_rows.append([t] + [v if d else None for v, d in zip(readings.values(), due)])
         if self.snapshots_due.due(t):
             output.snapshot(self.folder / f"snapshot_t{t:.3f}.png", particles, title=f"t = {t:.3f} s",
                             clim=self.options.pressure_scale)
@@ -154,9 +167,30 @@ class Recorder:
                                  [(t, c, c * h * h, c * h * h / floor, z) for t, c, z in self.cells],
                                  comment="cells holding particles; mean depth = occupied area / floor width; "
                                          "surface height = median over columns of the top particle's top")
+                if self.gauges:
+                    output.write_csv(self.folder / "gauges.csv", *self._gauge_table(),
+                                     comment="gauges (fempm.gauges): pressure at a point, nan where the wet fraction "
+                                             "is below 1/2 (dry); level: depth of water along a vertical line; "
+                                             "empty: not sampled at that time (the gauge's interval)")
             except OutputError as e:
                 error = str(e)
         output.agree(grid.comm, error)
+
+    def _gauge_table(self) -> tuple[list[str], list[list[float]]]:
+        """The header (names with units) and rows of ``gauges.csv``."""
+        units = [UNITS[g.kind] for g in self.gauges.gauges]
+        return ["t_s"] + [f"{name}_{unit}" for name, unit in zip(self.gauges.names, units)], self.gauge_rows
+
+    def plot_gauges(self):
+        """Write ``gauges.png`` (rank 0 draws; collective)."""
+        error = None
+        if self.solver.grid.comm.rank == 0 and self.gauge_rows:
+            try:
+                output.plot_gauges(self.folder / "gauges.png", *self._gauge_table(),
+                                   [UNITS[g.kind] for g in self.gauges.gauges])
+            except OutputError as e:
+                error = str(e)
+        output.agree(self.solver.grid.comm, error)
 
     def state(self) -> dict:
         """Everything :meth:`restore` needs to continue these histories and series (JSON-able; collective)."""
@@ -166,7 +200,7 @@ class Recorder:
             "pressure_max": self.pressure_max, "max_divergence": self.max_divergence,
             "particle_series": self.particle_series.entries if self.particle_series else [],
             "grid_series": self.grid_series.entries if self.grid_series else [],
-            "wall_time_s": total, "wall_time_by_phase_s": phases,
+            "wall_time_s": total, "wall_time_by_phase_s": phases, "gauges": self.gauge_rows,
         }
 
     def restore(self, state: dict):
@@ -180,6 +214,7 @@ class Recorder:
                 series.entries = [(t, f) for t, f in state[key]]
         self.wall_before = float(state.get("wall_time_s", 0.0))  # absent from checkpoints before it was kept
         self.phases_before = dict(state.get("wall_time_by_phase_s", {}))
+        self.gauge_rows = [list(row) for row in state.get("gauges", [])]  # rewritten whole: no row twice
 
     def close(self, status: str, cause: str | None, wall: float) -> dict:
         """Write the histories, the VTX stream, the final picture and summary.json; return the summary.
@@ -200,6 +235,8 @@ class Recorder:
                     status, cause = "stopped", str(e)
 
         attempt(self.write_histories)
+        if self.gauges:
+            attempt(self.plot_gauges)
         if self.grid_series:
             attempt(self.grid_series.write_vtx)
         if self.options.final_snapshot:

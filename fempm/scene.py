@@ -37,11 +37,11 @@ from fempm.formsfile import forms_path, shipped_forms
 from fempm.grid import cell_counts, square_cell_size
 from fempm.options import FLUID_REGION_CELLS, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
-from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, folder_name, forms_name, fraction,
-                          in_range, key, non_negative, petsc_table, point, points, positive, range_pair,
+from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, finite, folder_name, forms_name,
+                          fraction, in_range, key, non_negative, petsc_table, point, points, positive, range_pair,
                           square_count, text, times, velocity)
 
-__all__ = ["Body", "Domain", "Estimate", "Fluid", "MAX_STEPS", "Obstacle", "Output", "Scene", "Solver", "Time",
+__all__ = ["Body", "Domain", "Estimate", "Fluid", "Gauge", "MAX_STEPS", "Obstacle", "Output", "Scene", "Solver", "Time",
            "Walls", "available_memory", "estimate", "load_scene", "parse_scene", "scene_from_text",
            "seeded_bodies", "to_toml"]
 
@@ -166,6 +166,7 @@ class Solver:
     pspg: bool = key(boolean, True)
     volume_correction: float = key(fraction, Scheme.alpha)
     transfer: str = key(choice(*TRANSFERS), Scheme.transfer)
+    surface_aware: bool = key(boolean, Scheme.surface_aware)
     pic_blend: float = key(fraction, Scheme.pic_blend)
     pic_rate: float = key(non_negative, Scheme.pic_rate, unit="1/s")
     newmark_beta: float = key(in_range(0, 0.5), Scheme.beta)
@@ -190,6 +191,25 @@ class Output:
 
 
 @dataclass(frozen=True)
+class Gauge:
+    """A gauge (:mod:`fempm.gauges`): ``kind = "pressure"`` at a ``position`` (NaN while dry) or
+    ``"level"``, the depth of water along the vertical line ``x``; sampled every ``interval``
+    seconds (absent: every step) into ``gauges.csv``."""
+
+    name: str = key(text)
+    kind: str = key(choice("pressure", "level"))
+    position: tuple[float, float] | None = key(point, None, unit="m")
+    x: float | None = key(finite, None, unit="m")
+    interval: float | None = key(positive, None, unit="s")
+
+    def gauge(self):
+        """The :class:`fempm.gauges.PressureGauge` or :class:`~fempm.gauges.LevelGauge`."""
+        from fempm.gauges import LevelGauge, PressureGauge
+
+        return PressureGauge(self.name, self.position) if self.kind == "pressure" else LevelGauge(self.name, self.x)
+
+
+@dataclass(frozen=True)
 class Scene:
     """A whole study; build it with :func:`load_scene` or :func:`parse_scene`."""
 
@@ -203,6 +223,7 @@ class Scene:
     time: Time
     solver: Solver
     output: Output
+    gauges: tuple[Gauge, ...] = ()
     notes: tuple[str, ...] = field(default=(), compare=False)  # what the reading changed, to tell the user
 
     def blocked_cells(self) -> np.ndarray:
@@ -213,7 +234,7 @@ class Scene:
 
 _TOP = {"name": text, "gravity": point}
 _SECTIONS = {"domain": Domain, "fluid": Fluid, "walls": Walls, "time": Time, "solver": Solver, "output": Output}
-_LISTS = {"bodies": Body, "obstacles": Obstacle}
+_LISTS = {"bodies": Body, "obstacles": Obstacle, "gauges": Gauge}
 
 
 # -- reading ------------------------------------------------------------------------------------------
@@ -384,7 +405,19 @@ def _section(cls, table: dict, where: str):
     item = cls(**values)
     if isinstance(item, _Shaped):
         _check_shape_keys(item, table, where)
+    if isinstance(item, Gauge):
+        _check_gauge_keys(item, table, where)
     return item
+
+
+def _check_gauge_keys(item: Gauge, table: dict, where: str):
+    """A pressure gauge takes a position, a level gauge an x."""
+    needed, other = ("position", "x") if item.kind == "pressure" else ("x", "position")
+    if other in table:
+        raise InputError(f"{where}.{other}: a {item.kind} gauge takes {needed}, not {other}")
+    if needed not in table:
+        raise InputError(f"{where}.{needed} is missing: a {item.kind} gauge needs "
+                         + ("position = [x, y] (m)" if needed == "position" else "x, the line's abscissa (m)"))
 
 
 _SHAPE_KEYS = {"rectangle": ("lower", "upper"), "polygon": ("vertices",), "cells": ("cells",)}
@@ -612,6 +645,24 @@ def _check_geometry(scene: Scene):
         raise InputError(f"{_grid_key(d)}: the grid would be {d.shape} cells of {d.h:g} m, not {nx} x {ny} of {h:g}")
     owner = _check_obstacles(scene, nx, ny, h)
     _check_bodies(scene, owner, nx, h)
+    _check_gauges(scene, h)
+
+
+def _check_gauges(scene: Scene, h: float):
+    """Gauges inside the domain, their names unique."""
+    d, seen = scene.domain, {}
+    lower, upper, tol = np.asarray(d.lower), np.asarray(d.upper), 1e-9 * h
+    for k, g in enumerate(scene.gauges):
+        where = f"gauges[{k}]"
+        if g.name in seen:
+            raise InputError(f"{where}.name = {g.name!r}: gauges[{seen[g.name]}] has that name; names must be unique")
+        seen[g.name] = k
+        if g.kind == "pressure" and (np.any(np.asarray(g.position) < lower - tol)
+                                     or np.any(np.asarray(g.position) > upper + tol)):
+            raise InputError(f"{where}.position = {list(g.position)}: outside the domain "
+                             f"{lower.tolist()}..{upper.tolist()} (m)")
+        if g.kind == "level" and not lower[0] - tol <= g.x <= upper[0] + tol:
+            raise InputError(f"{where}.x = {g.x:g}: outside the domain's width {lower[0]:g}..{upper[0]:g} (m)")
 
 
 def _check_obstacles(scene: Scene, nx: int, ny: int, h: float) -> np.ndarray:
@@ -748,6 +799,14 @@ def _check_times(scene: Scene, fixed_step: bool = True):
             _whole_steps(value, t.dt, f"output.{name}")
         elif value < t.dt * (1 - 1e-9):
             raise InputError(f"output.{name} = {value:g} is shorter than time.dt = {t.dt:g}: must be >= dt (s)")
+    for k, g in enumerate(scene.gauges):
+        if g.interval is None:
+            continue
+        if fixed_step:
+            _whole_steps(g.interval, t.dt, f"gauges[{k}].interval")
+        elif g.interval < t.dt * (1 - 1e-9):
+            raise InputError(f"gauges[{k}].interval = {g.interval:g} is shorter than time.dt = {t.dt:g}: "
+                             f"must be >= dt (s)")
     for s in o.snapshots:
         if s > t.end * (1 + 1e-9):
             raise InputError(f"output.snapshots: {s:g} s is after the end of the run, time.end = {t.end:g} s")
@@ -761,7 +820,7 @@ def to_toml(scene: Scene) -> str:
     data = _plain(asdict(scene))
     top = [f"{k} = {_toml_value(v)}" for k, v in data.items() if k in _TOP]
     parts = ["\n".join(top)]
-    for name in ("domain", "fluid", "bodies", "obstacles", "walls", "time", "solver", "output"):
+    for name in ("domain", "fluid", "bodies", "obstacles", "walls", "time", "solver", "output", "gauges"):
         items = data[name] if name in _LISTS else [data[name]]
         for item in items:
             header = f"[[{name}]]" if name in _LISTS else f"[{name}]"

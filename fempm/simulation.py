@@ -54,8 +54,8 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     basis, particles = build_material(scene, comm)
     physics = Physics(viscosity=fluid.viscosity, gravity=scene.gravity, walls=asdict(scene.walls))
     scheme = Scheme(dt=scene.time.dt, courant=scene.time.courant, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,
-                    pspg=sv.pspg, transfer=sv.transfer, pic_blend=sv.pic_blend, pic_rate=sv.pic_rate,
-                    forms=sv.forms)
+                    surface_aware=sv.surface_aware, pspg=sv.pspg, transfer=sv.transfer, pic_blend=sv.pic_blend,
+                    pic_rate=sv.pic_rate, forms=sv.forms)
     controls = Controls(petsc_options=petsc, pressure_limit=pressure_limit(scene, particles))
     # The forms are compiled here: their mistakes name the file, and a stop request waits until the
     # compiler is done (stopped half-way, FFCx leaves its cache waiting for the compile).
@@ -200,6 +200,7 @@ def recorder_for(scene: Scene, solver, extra: dict | None = None) -> Recorder:
     return Recorder(solver, RecorderOptions(
         folder=Path(o.folder), particles_interval=o.particles_interval, grid_interval=o.grid_interval,
         snapshot_times=o.snapshots, final_snapshot=o.final_snapshot, pressure_scale=o.pressure_scale,
+        gauges=tuple((g.gauge(), g.interval) for g in scene.gauges),
         extra={"scene": scene.name, "dt": solver.dt, **(extra or {})},
     ))
 

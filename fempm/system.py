@@ -76,12 +76,14 @@ class GridSystem:
             "grid_velocity": GridFunction(self.vector_space, "grid_velocity"),
             "grid_acceleration": GridFunction(self.vector_space, "grid_acceleration"),
             "smoothed_density": GridFunction(self.scalar_space, "smoothed_density"),
+            "density_error": GridFunction(self.scalar_space, "density_error"),  # fempm.density.DensityError
         }
         self.velocity = GridFunction(self.vector_space, "velocity")
         self.pressure = GridFunction(self.scalar_space, "pressure")
         self.constants = {
             "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
             "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.alpha, "pspg": float(scheme.pspg),
+            "surface_aware": float(scheme.surface_aware),
             "convection": float(convection),
         }
         self.walls = Walls(self.space, physics)
@@ -144,6 +146,17 @@ class GridSystem:
         else:
             raise SolveFailed(f"Newton did not converge in {c.newton_max_it} iterations "
                               f"(|R| = {norm:.3e}, |R0| = {r0:.3e})")
+
+    def reaction(self, forms: StepForms, particles=None) -> np.ndarray:
+        """The residual ``R(U)`` of the solved step at the owned dofs: on a held dof the force its
+        constraint exerts (one-sided walls, :meth:`fempm.walls.Walls.update`). For forms affine in
+        U ``R(U_0) + J delta`` from the solve's own vectors, else assembled again."""
+        n = self.space.num_owned_dofs
+        if not forms.linear:
+            return forms.residual.assemble_vector(particles, self._R).array[:n].copy()
+        product = self._delta_of.createVecLeft()  # the solve scaled R(U_0) by -1; delta = U - U_0
+        self._delta_of.mult(self._delta, product)
+        return product.getArray(readonly=True)[:n] - self._R.array[:n]
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]

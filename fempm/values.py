@@ -13,7 +13,7 @@ from dataclasses import field
 
 from fempm.expressions import ALLOWED, BadExpression, Expression
 
-__all__ = ["BadValue", "REQUIRED", "boolean", "cell_count_pair", "cell_list", "choice", "folder_name", "forms_name",
+__all__ = ["BadValue", "REQUIRED", "boolean", "cell_count_pair", "cell_list", "choice", "finite", "folder_name", "forms_name",
            "fraction", "in_range", "key", "non_negative", "petsc_table", "point", "points", "positive", "range_pair",
            "square_count", "text", "times", "velocity"]
 
@@ -28,6 +28,14 @@ def _number(value) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise BadValue(f"must be a number, got {type(value).__name__} {value!r}")
     return float(value)
+
+
+def finite(value) -> float:
+    """A finite number."""
+    x = _number(value)
+    if not math.isfinite(x):
+        raise BadValue(f"must be a finite number, got {value!r}")
+    return x
 
 
 def positive(value) -> float:

@@ -6,6 +6,25 @@ for ``slip``, both for ``no-slip``, the tangential one for ``outflow``, none for
 on every function non-zero in an obstacle cell) and the value held on each (zero, or a moving
 wall's speed); it also stops particles at the impermeable sides. :class:`FreeDofs` picks the dofs
 an implicit step solves for.
+
+**One-sided walls** (contact with separation, Signorini at the velocity level). Held always, a
+slip or no-slip wall is two-sided: it pulls water that would leave it, so water thrown at the
+lid glides along it instead of falling, and a particle can rest in an upper corner. A wall at
+rest should only push::
+
+    v . n <= 0,   lambda >= 0,   lambda (v . n) = 0
+
+``n`` the outward normal, ``lambda`` the wall's push on the water. The reaction of a held dof is
+its row's residual at the solution (the momentum balance the constraint force closes): the wall
+pushes where ``R_i n_i < 0``. The normal dofs of slip and no-slip sides at rest form an active
+set (:meth:`Walls.start_step`, :meth:`Walls.update`; a primal-dual active set, Hintermueller,
+Ito & Kunisch 2002), lagged by one step so that a step costs one solve: after a solve, held dofs
+that pull are released and free dofs that moved into the wall are held; the next step starts
+from that set, with the dofs that were dry held and those whose projected velocity enters the
+wall held. On a no-slip wall the tangential dof of a function is held and released with its
+normal one. Where the step's water has no free surface (every function has material in its
+support: a full box or channel, whose pressure level a pin or an outflow fixes) a reaction has
+no sign to separate by, and every wall dof stays held (two-sided). Moving walls and obstacles are always held.
 """
 
 from __future__ import annotations
@@ -15,9 +34,13 @@ import numpy as np
 from fempm.options import Physics
 from fempm.space import GridFunction, Space
 
-__all__ = ["FreeDofs", "Walls"]
+__all__ = ["FORCE_TOLERANCE", "FreeDofs", "SPEED_TOLERANCE", "Walls"]
 
 _COMPONENTS = {"slip": "normal", "no-slip": "both", "outflow": "tangential", "open": "none"}
+#: the component normal to each side, and the outward normal's sign
+_NORMALS = {"left": (0, -1.0), "right": (0, 1.0), "bottom": (1, -1.0), "top": (1, 1.0)}
+FORCE_TOLERANCE = 1e-3  #: pulls below this times rho |g| h^2 do not release a wall dof
+SPEED_TOLERANCE = 1e-3  #: motion into a wall below this times sqrt(|g| h) does not hold one
 
 
 class Walls:
@@ -34,23 +57,147 @@ class Walls:
             side at rest also holds).
         positions: the held dofs as positions among this rank's owned dofs.
         stops: particle displacements cut at an impermeable side so far (see :meth:`keep_inside`).
+        one_sided: whether :meth:`start_step` releases wall dofs (see the module); False: two-sided.
+        released: contact dofs released so far (counted over the steps, this rank).
     """
 
     def __init__(self, space: Space, physics: Physics, field: str = "u"):
         self.space, self.physics, self.field = space, physics, field
         self.conditions = physics.wall_conditions()
-        self.dofs, self.values = self._held()
+        self._fixed, self._fixed_values = self._held()  # held always (global numbers)
         owned = space.local_to_global[: space.num_owned_dofs]
-        self.positions = np.searchsorted(owned, self.dofs)
-        bs, first = space.bs, space.field_offset(field)
+        self._owned = owned
+        self._contact_of(owned)
+        self.one_sided = True
+        self.free_surface = False  # in this step (see start_step)
+        self.released = 0
+        self._state = {}
+        self.stops = 0
+        self._set_held()
+
+    def _contact_of(self, owned: np.ndarray):
+        """The normal dofs of slip and no-slip sides at rest (positions among the owned dofs), the
+        outward normal's sign of each and its no-slip tangential partner (position, or -1)."""
+        space = self.space
+        normal, sign, partner, orphans = [], [], [], []
+        for side, kind in self.conditions.items():
+            if kind not in ("slip", "no-slip") or side in self.physics.wall_speeds:
+                continue
+            component, outward = _NORMALS[side]
+            dofs = space.wall_dofs(self.field, component, side[0])
+            held = np.isin(dofs, self._fixed)  # held for another reason (an outflow side's, an obstacle's)
+            if kind == "no-slip":  # their tangential partners stay held too
+                orphans.append(dofs[held] + (1 - 2 * component))
+            dofs = dofs[~held]
+            tangential = dofs + (1 - 2 * component)  # the other component of the same function
+            pair = np.where(np.isin(tangential, self._fixed) | (kind == "slip"), -1,
+                            np.searchsorted(owned, tangential))
+            normal.append(np.searchsorted(owned, dofs))
+            sign.append(np.full(len(dofs), outward))
+            partner.append(pair)
+        join = lambda parts, dtype: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)  # noqa: E731
+        self.normal, self.sign, self.partner = join(normal, np.int64), join(sign, float), join(partner, np.int64)
+        orphans = np.setdiff1d(join(orphans, np.int64), self._fixed)
+        self._fixed = np.concatenate([self._fixed, orphans])
+        self._fixed_values = np.concatenate([self._fixed_values, np.zeros(len(orphans))])
+        self.active = np.ones(len(self.normal), dtype=bool)  # held now
+        self.wet = np.zeros(len(self.normal), dtype=bool)  # material in the function's support last step
+
+    def _set_held(self):
+        """:attr:`dofs`, :attr:`values`, :attr:`positions`: the fixed dofs and the active contact dofs."""
+        partners = self.partner[self.active]
+        contact = np.concatenate([self.normal[self.active], partners[partners >= 0]])
+        dofs = np.concatenate([self._fixed, self._owned[contact]])
+        values = np.concatenate([self._fixed_values, np.zeros(len(contact))])
+        dofs, first = np.unique(dofs, return_index=True)
+        self.dofs, self.values = dofs, values[first]
+        self.positions = np.searchsorted(self._owned, self.dofs)
+        bs, first = self.space.bs, self.space.field_offset(self.field)
         # the same dofs in a two-component grid function (a velocity or an acceleration)
         self._vector_index = self.positions // bs * 2 + self.positions % bs - first
-        self.stops = 0
+
+    def tolerances(self, density: float, dt: float) -> tuple[float, float]:
+        """The pull (per unit thickness) below which a held dof stays held,
+        ``FORCE_TOLERANCE rho |g| h^2`` (a thousandth of a cell of water's weight), and the
+        displacement into a wall below which a free dof stays free, ``SPEED_TOLERANCE sqrt(|g| h) dt``;
+        ``|g|`` at least 1 m/s^2 (a case without gravity keeps a scale)."""
+        g, h = max(float(np.linalg.norm(self.physics.gravity)), 1.0), self.space.grid.h
+        return FORCE_TOLERANCE * density * g * h**2, SPEED_TOLERANCE * np.sqrt(g * h) * dt
+
+    def start_step(self, keep: np.ndarray, velocity: GridFunction):
+        """This step's held dofs, before the projected ``v_n`` is overwritten on them (collective).
+
+        ``keep``: boolean per owned dof of the space, the dofs the step keeps (material in the
+        function's support); ``velocity``: the projected grid velocity (two components). With a
+        free surface (some function without material, on any rank: air in the tank) the last
+        step's active set, with the dofs that were dry then held, and those whose projected
+        velocity enters the wall faster than ``SPEED_TOLERANCE sqrt(|g| h)``; without, every wall dof.
+        """
+        if not self.one_sided or self.space.comm.allreduce(len(self.normal)) == 0:
+            return
+        dry = ~keep.reshape(-1, self.space.bs)[:, self.space.field_offset(self.field)]
+        self.free_surface = self.space.comm.allreduce(int(np.count_nonzero(dry))) > 0
+        if not self.free_surface:
+            self.active[:] = True
+        else:
+            bs, first = self.space.bs, self.space.field_offset(self.field)
+            incoming = velocity.vector.array[self.normal // bs * 2 + self.normal % bs - first] * self.sign
+            self.active |= ~self.wet
+            self.active |= incoming > self.tolerances(0.0, 1.0)[1]
+        self.wet = keep[self.normal].copy()
+        self._set_held()
+
+    def update(self, reaction: np.ndarray, displacement: np.ndarray, density: float, dt: float):
+        """The active set after a solve, for the next step: held dofs whose reaction pulls
+        (``R n`` above the force tolerance) released, free dofs displaced into the wall (beyond
+        the motion tolerance) held (see :meth:`tolerances`).
+
+        ``reaction``: the residual at the owned dofs at the solution; ``displacement``: the
+        solved ``du`` at the owned dofs.
+        """
+        if not self.one_sided or self.space.comm.allreduce(len(self.normal)) == 0:
+            return
+        if not self.free_surface:  # two-sided this step; the state as start_step left it
+            self._gather_state()
+            return
+        force, motion = self.tolerances(density, dt)
+        pull = self.active & (reaction[self.normal] * self.sign > force)
+        enter = ~self.active & (displacement[self.normal] * self.sign > motion)
+        self.active[pull] = False
+        self.active[enter] = True
+        self.released += int(np.count_nonzero(pull))
+        self._gather_state()
+
+    def _ids(self) -> np.ndarray:
+        """Structured numbers (function * bs + component) of the contact dofs: the same whatever the ranks."""
+        functions = self.space.numbering.local_functions[self.normal // self.space.bs]
+        return functions * self.space.bs + self.normal % self.space.bs
+
+    def _gather_state(self):
+        ids = self._ids()
+        gather = lambda mask: sorted(int(i) for part in self.space.comm.allgather(ids[mask]) for i in part)  # noqa: E731
+        self._state = {"walls_released": gather(~self.active), "walls_dry": gather(~self.wet)}
+
+    def contact_state(self) -> dict:
+        """The active set after the last step: ``walls_released`` and ``walls_dry``, the structured
+        numbers of the released and of the dry contact dofs, the same on every rank (not collective:
+        gathered at each :meth:`update`; JSON-able lists, for a checkpoint). Empty before the first step."""
+        return dict(self._state)
+
+    def restore_contact(self, state: dict | None):
+        """Back to a :meth:`contact_state`, or a table holding it (without: every wall dof held, all
+        dry, as at the start)."""
+        ids = self._ids()
+        state = {k: state[k] for k in ("walls_released", "walls_dry") if k in (state or {})}
+        self.active = ~np.isin(ids, state.get("walls_released", []))
+        self.wet = ~np.isin(ids, state["walls_dry"]) if "walls_dry" in state else np.zeros(len(ids), bool)
+        self._state = state
+        self._set_held()
 
     def _held(self) -> tuple[np.ndarray, np.ndarray]:
         space, grid = self.space, self.space.grid
         held = [space.cell_dofs(self.field, np.flatnonzero(grid.blocked))]
-        moving, speeds = [], []
+        contact, moving, speeds = [], [], []  # contact: slip and no-slip sides at rest (one-sided)
         for side, kind in self.conditions.items():
             normal = 0 if side in ("left", "right") else 1
             components = {"normal": (normal,), "both": (0, 1), "tangential": (1 - normal,), "none": ()}
@@ -60,14 +207,16 @@ class Walls:
                     moving.append(dofs)
                     speeds.append(np.full(len(dofs), float(self.physics.wall_speeds[side])))
                 else:
-                    held.append(dofs)
-        at_rest = np.unique(np.concatenate(held))
+                    at_rest_wall = kind in ("slip", "no-slip") and side not in self.physics.wall_speeds
+                    (contact if at_rest_wall else held).append(dofs)
+        at_rest = np.unique(np.concatenate(held + contact))
         moving, speeds = (np.concatenate(a) if a else np.zeros(0) for a in (moving, speeds))
         moving, first = np.unique(moving, return_index=True)  # two moving sides meet: the first named
         speeds = speeds[first]
         sliding = ~np.isin(moving, at_rest)
-        dofs = np.concatenate([at_rest, moving[sliding]]).astype(np.int64)
-        values = np.concatenate([np.zeros(len(at_rest)), speeds[sliding]])
+        fixed = np.unique(np.concatenate(held))
+        dofs = np.concatenate([fixed, moving[sliding]]).astype(np.int64)
+        values = np.concatenate([np.zeros(len(fixed)), speeds[sliding]])
         order = np.argsort(dofs, kind="stable")
         return dofs[order], values[order]
 

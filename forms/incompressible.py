@@ -16,9 +16,11 @@ What a form may use (see ``fempm.quadrature.Symbols``):
   particle's own values at the start of the step);
 * grid functions: ``U`` (the unknowns), ``grid_velocity`` v_n and
   ``grid_acceleration`` a_n (the particle values projected to the grid,
-  ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2);
+  ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2),
+  ``density_error`` (what the volume correction removes, see :func:`continuity`);
 * constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``gravity``
-  (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``pspg`` (1 or 0),
+  (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``surface_aware`` (1 or 0,
+  its density error, see :func:`continuity`), ``pspg`` (1 or 0),
   ``convection`` (1 on a fixed grid, see :func:`convection`; 0 in the MPM, whose
   grid moves with the material).
 
@@ -116,7 +118,13 @@ def continuity(s):
     for both signs, ``-(alpha/rho)(rho - rho~)/dt``; we keep only the expansion:
     at a free surface rho~ < rho by construction (the basis functions reach into
     air), and the contraction asked there squeezes a column at rest instead of
-    holding it (README, "Where fempm departs from method.md").
+    holding it (README, "Where fempm departs from method.md"). Crowding only, thinning
+    is never undone, and a free surface that moves swells.
+
+    With ``surface_aware`` = 1 instead ``int q (div v_{n+1} - alpha e / dt) dx``, ``e`` the
+    grid function ``density_error`` (``fempm.density.DensityError``): ``rho~ / rho - 1``,
+    both signs, where a function's support lies deep in the water, and crowding only in
+    the band along a free surface.
     """
     du, _ = ufl.split(s.grid("U"))
     _, q = s.test
@@ -125,6 +133,8 @@ def continuity(s):
     v_new = newmark.velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
     if not switched_on(alpha):
         return q * ufl.div(v_new) * s.dx
+    if switched_on(s.constant("surface_aware")):
+        return q * (ufl.div(v_new) - alpha * s.grid("density_error") / dt) * s.dx
     crowding = ufl.max_value(s.grid("smoothed_density") - rho, 0)
     return q * (ufl.div(v_new) - alpha / rho * crowding / dt) * s.dx
 

@@ -46,7 +46,8 @@ def _state(folder):
     with np.load(Path(folder) / CHECKPOINT) as f:
         particles = {k: f[k] for k in f.files if k.startswith("particle:")}
         meta = json.loads(str(f["meta"]))
-    tables = {name: (Path(folder) / name).read_bytes() for name in ("front.csv", "volume.csv", "particles.pvd", "grid.pvd")}
+    tables = {name: (Path(folder) / name).read_bytes() for name in ("front.csv", "volume.csv", "gauges.csv", "particles.pvd",
+                                                                "grid.pvd")}
     return particles, meta, tables
 
 
@@ -92,6 +93,11 @@ def test_resume_is_bit_identical_to_the_uninterrupted_run(shared_tmp, courant):
             assert saved["particle:affine_velocity"].shape == saved["particle:affine_acceleration"].shape == (n, 2, 2)
         front = np.loadtxt(part / "front.csv", delimiter=",", skiprows=2)
         assert len(front) == complete["steps"] + 1 and front[-1, 1] > front[0, 1] + 0.01  # the water moved
+        # the scene's gauges: a row per step, none twice after the resume (the wall's are dry this early)
+        gauges = np.genfromtxt(part / "gauges.csv", delimiter=",", skip_header=2)
+        assert len(gauges) == complete["steps"] + 1 and len(np.unique(gauges[:, 0])) == len(gauges)
+        assert np.all(np.isfinite(gauges[:, -1])) and np.all(np.isnan(gauges[:, 1]))  # level every step; wall dry
+        assert (part / "gauges.png").is_file()
 
 
 def _fempm(*args, ranks=1):

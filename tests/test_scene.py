@@ -185,6 +185,18 @@ BAD_SCENES = [
      r"the tank's faces are the walls: take domain.upper\[0\] = 0.584 or 0.5986 \(40 or 41 cells\)"),
     ("output folder with a NUL", _edit('folder = "results/dambreak"', 'folder = "o\\u0000x"'), [],
      r"output.folder: must not contain a NUL character, got 'o\\x00x'"),
+    ("gauge of an unknown kind", _edit('kind = "level"\nx', 'kind = "depth"\nx'), [],
+     r"gauges\[4\].kind: must be one of 'pressure', 'level', got 'depth'"),
+    ("pressure gauge without a position", _edit('position = [0.5839, 0.005] ', '# '), [],
+     r"gauges\[0\].position is missing: a pressure gauge needs position = \[x, y\] \(m\)"),
+    ("level gauge given a position", _edit("x = 0.292 ", "position = [0.292, 0.1]\n#"), [],
+     r"gauges\[4\].position: a level gauge takes x, not position"),
+    ("gauge outside the tank", _edit("position = [0.5839, 0.0584]", "position = [0.6, 0.0584]"), [],
+     r"gauges\[3\].position = \[0.6, 0.0584\]: outside the domain \[0.0, 0.0\]..\[0.584, 0.584\] \(m\)"),
+    ("two gauges of one name", _edit('name = "right_y0.0146"', 'name = "right_y0.005"'), [],
+     r"gauges\[1\].name = 'right_y0.005': gauges\[0\] has that name; names must be unique"),
+    ("gauge interval not whole steps", _edit("x = 0.292 ", "x = 0.292\ninterval = 0.0105\n#"), [],
+     r"gauges\[4\].interval = 0.0105 is not a whole number of steps of time.dt = 0.001 \(10.5\)"),
     ("output folder name too long", _edit('folder = "results/dambreak"', f'folder = "{"a" * 300}"'), [],
      r"output.folder: a name of 300 characters is too long for the file system \(a part of 300 bytes; at most 255"),
 ]
@@ -284,6 +296,7 @@ def test_readme_example_is_a_valid_complete_scene(tmp_path):
     assert set(data["domain"]) == keys(type(scene.domain)) - {"cells"}  # cells is the alternative to cell_size
     assert set(data["bodies"][0]) == keys(Body) - {"vertices"} and "vertices" in data["bodies"][1]
     assert {"name", "gravity", "obstacles"} <= set(data)
+    assert {k for g in data["gauges"] for k in g} == keys(type(scene.gauges[0]))
     solver = build_solver(scene, MPI.COMM_WORLD)
     assert solver.particles.global_count() == 2835 and int(solver.grid.blocked.sum()) == 48
 

@@ -1,0 +1,55 @@
+"""The density error the volume correction removes (method.md eq. 3), aware of the free surface.
+
+``phi_i = rho~_i / rho`` (the smoothed density of eq. 2 over the density: the share of function
+``i``'s support the particles' volumes cover) measures crowding (``phi_i > 1``) and thinning
+(``phi_i < 1``) of the particles, but only where the support lies inside the water: where it
+reaches into air ``phi_i < 1`` by construction, and a correction of both signs contracts every
+free surface (method.md's form squeezed a column at rest), while a correction of crowding only
+(``max(phi_i - 1, 0)``) never undoes thinning, so a free surface that moves swells. So::
+
+    e_i = phi_i - 1             if every cell of i's support is deep (phi >= DEEP at its centre:
+                                filled, some way below any free surface)
+    e_i = max(phi_i - 1, 0)     otherwise (the band along a free surface: crowding only)
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fempm.space import GridFunction, Space
+
+__all__ = ["DEEP", "DensityError"]
+
+#: a cell is deep inside the material when the wet fraction at its centre reaches this
+DEEP = 0.8
+
+
+class DensityError:
+    """``e_i`` per basis function (see the module) from ``phi_i`` on a scalar space's local functions.
+
+    Args:
+        space: a scalar space of the basis.
+    """
+
+    def __init__(self, space: Space):
+        grid = space.grid
+        cells = grid.owned_cells
+        self.centre_values = space.basis.tabulate(cells, np.full((len(cells), 2), 0.5), order=0)[:, 0, :]
+        self.cell_functions = space.local_functions_of_cells(cells)
+        self._shallow = GridFunction(space, "shallow_cells")
+
+    def interior(self, phi: np.ndarray) -> np.ndarray:
+        """Which local functions have only deep cells in their support, given ``phi`` on the local
+        functions (owned and ghost, up to date; collective)."""
+        centre = np.einsum("cl,cl->c", self.centre_values, phi[self.cell_functions])
+        shallow = self._shallow
+        shallow.values[:] = 0.0
+        np.add.at(shallow.values[:, 0], self.cell_functions[centre < DEEP].ravel(), 1.0)
+        shallow.scatter_reverse_add()
+        shallow.scatter_forward()
+        return shallow.values[:, 0] == 0
+
+    def __call__(self, phi: np.ndarray) -> np.ndarray:
+        """``e_i`` on the local functions (collective)."""
+        error = phi - 1.0
+        return np.where(self.interior(phi), error, np.maximum(error, 0.0))

@@ -1,0 +1,62 @@
+"""The surface-aware density error of the volume correction (fempm.density) and what it does to
+a free surface at rest and in slow oscillation (benchmarks/free_surface_volume.py)."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import fempm
+from fempm import density
+from fempm.gauges import WetFraction
+from fempm.options import Scheme
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import free_surface_volume  # noqa: E402
+
+L, H = 0.146, 0.292
+H_CELL = L / 10
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("top", [H, H - H_CELL / 2])
+def test_undisturbed_water_has_no_density_error_and_a_band_along_its_surface(top):
+    grid = fempm.Grid.from_cells(MPI.COMM_WORLD, (0.0, 0.0), (L, 4 * L), (10, 40))
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.0, 0.0), (L, top)), per_cell=2, density=1000.0)
+    basis = fempm.BSpline2(grid)
+    wet = WetFraction(basis)
+    phi = wet(water).values[:, 0]
+    error = density.DensityError(wet.field.space)
+    np.testing.assert_allclose(error(phi), 0.0, atol=1e-12)
+    # function k is non-zero in the cell rows k-2..k: inside when all three are filled and the
+    # top one's centre lies deep enough (the cell below the surface's cell, half or wholly filled)
+    row = wet.field.space.numbering.local_functions // basis.nfx
+    last = int(np.ceil(top / H_CELL - 1e-9)) - 2
+    np.testing.assert_array_equal(error.interior(phi), row <= last)
+
+
+def _change(case: str, end: float, **scheme) -> dict:
+    return free_surface_volume.run_case(case, Scheme(**scheme), end)
+
+
+@pytest.mark.parametrize("case, end, bound", [
+    ("column", 1.0, 1e-4),  # measured -0.001 % (crowding only: +0.014 %)
+    ("slosh", 1.0, 2e-4),  # measured -0.002 %
+    pytest.param("column", 10.0, 2e-3, marks=pytest.mark.full),  # measured -0.0001 % (crowding only +0.115 %, α 0 -0.317 %)
+    pytest.param("slosh", 5.0, 2e-3, marks=pytest.mark.full),  # measured -0.071 % (crowding only +2.73 %, α 0 -1.74 %)
+])
+def test_a_free_surface_keeps_its_volume_with_the_surface_aware_correction(case, end, bound):
+    r = _change(case, end, surface_aware=True)
+    assert r["status"] == "completed"
+    assert abs(r["change"]) < bound
+    if case == "column":
+        assert r["max_speed_end"] < 1e-3  # m/s; measured 5.0e-4 (1 s), 6.8e-5 (10 s)
+
+
+@pytest.mark.full
+def test_the_crowding_only_correction_swells_a_sloshing_surface_and_none_shrinks_it():
+    assert _change("slosh", 5.0)["change"] > 0.02  # measured +2.73 % in 5 s
+    assert _change("slosh", 5.0, alpha=0.0)["change"] < -0.01  # measured -1.74 %

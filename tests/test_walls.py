@@ -1,0 +1,110 @@
+"""One-sided walls (fempm.walls): a wall stops water going into it and lets it leave."""
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import fempm
+from fempm.implicit import ImplicitSolver
+
+G = 9.81
+
+
+def tank(comm=MPI.COMM_WORLD):
+    """A 0.2 m square tank of 20 x 20 cells."""
+    return fempm.Grid.from_cells(comm, (0.0, 0.0), (0.2, 0.2), (20, 20))
+
+
+def thrown_blob(one_sided: bool = True):
+    """A 6 x 4 cm block of water thrown up at 2 m/s, 6 cm below the lid."""
+    grid = tank()
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.07, 0.10), (0.13, 0.14)), per_cell=2, density=1000.0, velocity=(0.0, 2.0))
+    solver = ImplicitSolver(fempm.BSpline2(grid), water)
+    solver.walls.one_sided = one_sided
+    return solver
+
+
+def heights(solver) -> tuple[float, float]:
+    """Mean and largest particle height on all ranks."""
+    p, comm = solver.particles, solver.grid.comm
+    return (comm.allreduce(float(p.x[:, 1].sum())) / p.global_count(),
+            comm.allreduce(float(p.x[:, 1].max(initial=-np.inf)), op=MPI.MAX))
+
+
+@pytest.mark.mpi
+def test_water_thrown_against_the_lid_falls_back():
+    one, two = thrown_blob(), thrown_blob(one_sided=False)
+    for _ in range(250):
+        one.step()
+        two.step()
+    mean, top = heights(one)
+    assert mean < 0.06  # measured 0.049 m at t = 0.25 s: fallen to the floor
+    assert top < 0.09  # measured 0.072 m: no particle left near the lid (0.2 m)
+    assert heights(two)[0] > 0.13  # measured 0.146 m: the two-sided lid holds it
+    assert one.walls.stops <= 10  # measured 2: particles cut at the lid by a wall let go a step late
+    assert one.grid.comm.allreduce(one.walls.released) > 100  # measured 1030 releases
+
+
+def test_a_lone_particle_in_an_upper_corner_falls_freely():
+    speeds = {}
+    for one_sided in (True, False):
+        grid = tank()
+        p = fempm.Particles(grid)
+        x = np.array([[0.1975, 0.1975]]) if grid.comm.rank == 0 else np.zeros((0, 2))
+        p.add_points(x, 0.005**2, density=1000.0)
+        solver = ImplicitSolver(fempm.BSpline2(grid), p)
+        solver.walls.one_sided = one_sided
+        for _ in range(100):
+            solver.step()
+        speeds[one_sided] = solver.grid.comm.allreduce(float(-p["velocity"][:, 1].sum()))
+    assert speeds[True] == pytest.approx(G * 0.1, rel=0.03)  # measured 0.962 m/s, 2 % below g t
+    assert speeds[False] < 0.5  # measured 0.447 m/s: the walls held it back
+
+
+def _run(solver, steps: int, one_sided: bool):
+    """Particle positions by id and the front history of ``steps`` steps (serial)."""
+    from fempm import diagnostics
+
+    solver.walls.one_sided = one_sided
+    fronts = []
+    for _ in range(steps):
+        solver.step()
+        fronts.append(diagnostics.front_position(solver.particles))
+    order = np.argsort(solver.particles["id"])
+    return solver.particles.x[order], np.array(fronts), solver.walls.released
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="compares particles by id on one rank")
+def test_a_column_at_rest_is_the_same_with_one_sided_walls():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).parent))
+    from test_gauges import column
+
+    (x1, _, released), (x2, _, _) = _run(column(), 300, True), _run(column(), 300, False)
+    assert released == 0  # measured: the walls push everywhere
+    assert np.array_equal(x1, x2)  # measured: bit for bit
+
+
+def _dambreak(end: float):
+    from pathlib import Path
+
+    from fempm.scene import load_scene
+    from fempm.simulation import build_solver
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml", folder="/nonexistent/x",
+                       end_time=end)
+    return build_solver(scene)
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="compares particles by id on one rank")
+@pytest.mark.parametrize("steps, front_bound, position_bound", [
+    (100, 1e-6, 1e-4),  # measured 1.7e-7 m and 2.1e-5 m to 0.1 s (14 releases)
+    pytest.param(270, 5e-6, 5e-4, marks=pytest.mark.full),  # measured 2.8e-6 m and 1.7e-4 m to 0.27 s
+])
+def test_the_dam_break_front_is_unchanged_by_one_sided_walls(steps, front_bound, position_bound):
+    (x1, f1, _), (x2, f2, _) = _run(_dambreak(1.0), steps, True), _run(_dambreak(1.0), steps, False)
+    assert np.abs(f1 - f2).max() < front_bound
+    assert np.abs(x1 - x2).max() < position_bound
