@@ -109,7 +109,7 @@ class Scheme:
             step is ``min(1, pic_blend + pic_rate dt)``, a damping that does not grow as dt falls
             and that the affine parts make vanish fast as h falls. Without any PIC share, FLIP
             increments let a column at rest grow a grid-scale velocity mode; on Q1 a share of
-            100/s does not hold it either (300/s or ``apic`` does: ``tests/test_implicit.py``).
+            100/s does not hold it either (``apic`` does: ``tests/test_implicit.py``).
         forms: the weak forms, a file of ``forms/`` by bare name or a path to a ``.py`` file.
     """
 

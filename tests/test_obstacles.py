@@ -58,7 +58,7 @@ def test_water_falling_on_a_pillar_splits_around_it_and_never_enters():
     low = x[:, 1] < 0.075
     count = lambda mask: comm.allreduce(int(mask.sum()))  # noqa: E731
     left, right = count(low & (x[:, 0] < 0.135)), count(low & (x[:, 0] > 0.165))
-    assert 40 <= left <= 46 and 40 <= right <= 46  # split both ways, evenly: measured 43 and 43
+    assert 46 <= left <= 52 and 46 <= right <= 52  # split both ways, evenly: measured 49 and 49 (FLIP/PIC 43, 43)
     assert count(low & (x[:, 0] > 0.135) & (x[:, 0] < 0.165)) == 0
     assert count(np.ones(len(x), bool)) == 200  # none lost
 

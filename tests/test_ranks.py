@@ -31,7 +31,8 @@ def test_front_history_is_the_same_on_1_2_and_4_ranks(tmp_path):
         run = subprocess.run([mpirun, "-n", str(ranks), sys.executable, "-m", "fempm.cli", "run", str(scene_file)],
                              capture_output=True, text=True, timeout=900, env={**os.environ, "OMP_NUM_THREADS": "1"})
         assert run.returncode == 0, run.stderr[-3000:]
-        assert sorted(p.name for p in folder.iterdir()) == ["front.csv", "summary.json", "volume.csv"]
+        assert sorted(p.name for p in folder.iterdir()) == ["front.csv", "gauges.csv", "gauges.png", "summary.json",
+                                                                 "volume.csv"]
         fronts[ranks] = np.loadtxt(folder / "front.csv", delimiter=",", skiprows=2)
     assert fronts[1].shape == (101, 2) and fronts[1][-1, 1] - fronts[1][0, 1] > 0.02  # the front ran
     for ranks in (2, 4):

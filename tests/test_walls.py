@@ -40,9 +40,9 @@ def test_water_thrown_against_the_lid_falls_back():
         two.step()
     mean, top = heights(one)
     assert mean < 0.06  # measured 0.049 m at t = 0.25 s: fallen to the floor
-    assert top < 0.09  # measured 0.072 m: no particle left near the lid (0.2 m)
-    assert heights(two)[0] > 0.13  # measured 0.146 m: the two-sided lid holds it
-    assert one.walls.stops <= 10  # measured 2: particles cut at the lid by a wall let go a step late
+    assert top < 0.14  # measured 0.129 m (FLIP/PIC 0.072 m): no particle left near the lid (0.2 m)
+    assert heights(two)[0] > 0.11  # measured 0.122 m (FLIP/PIC 0.146 m): the two-sided lid holds it
+    assert one.walls.stops <= 170  # measured 150 (FLIP/PIC 2): particles cut at the lid by a wall let go a step late
     assert one.grid.comm.allreduce(one.walls.released) > 100  # measured 1030 releases
 
 
@@ -59,7 +59,7 @@ def test_a_lone_particle_in_an_upper_corner_falls_freely():
             solver.step()
         speeds[one_sided] = solver.grid.comm.allreduce(float(-p["velocity"][:, 1].sum()))
     assert speeds[True] == pytest.approx(G * 0.1, rel=0.03)  # measured 0.962 m/s, 2 % below g t
-    assert speeds[False] < 0.5  # measured 0.447 m/s: the walls held it back
+    assert speeds[False] < 0.85  # measured 0.790 m/s (FLIP/PIC 0.447 m/s): the walls held it back
 
 
 def _run(solver, steps: int, one_sided: bool):
