@@ -53,21 +53,37 @@ class EnergyWatch:
     """Stops when the mechanical energy (:func:`fempm.diagnostics.mechanical_energy`) stands more
     than ``gain_limit`` times its starting value above its lowest value so far: gravity and walls
     at rest only take energy away, so a gain is the scheme injecting it (the "eruption" of a too
-    large step)."""
+    large step). An eruption that crowds the water loses potential energy as it gains kinetic, so
+    a particle faster than ``SPEED_FACTOR`` times the speed of a fall from the top of the box (with
+    the fastest start added, ``sqrt(v_0^2 + 2 |g| H)``) stops the run as well."""
+
+    SPEED_FACTOR = 2.0
 
     def __init__(self, particles, gravity, gain_limit: float):
         self.particles, self.gravity, self.gain_limit = particles, gravity, gain_limit
-        self.datum = diagnostics.lowest_corner(particles.grid, gravity)
+        grid = particles.grid
+        self.datum = diagnostics.lowest_corner(grid, gravity)
         self.start = self.lowest = diagnostics.mechanical_energy(particles, gravity, self.datum)
+        corners = np.array([[x, y] for x in (grid.lower[0], grid.upper[0]) for y in (grid.lower[1], grid.upper[1])])
+        drop = float(np.max(-(corners - self.datum) @ np.asarray(gravity, dtype=float)))  # |g| H
+        self.speed_limit = self.SPEED_FACTOR * np.sqrt(self._fastest() ** 2 + 2 * drop)
+
+    def _fastest(self) -> float:
+        speeds = np.linalg.norm(self.particles["velocity"], axis=1)
+        return self.particles.grid.comm.allreduce(float(speeds.max(initial=0.0)), op=MPI.MAX)
 
     def __call__(self, dt: float):
         energy = diagnostics.mechanical_energy(self.particles, self.gravity, self.datum)
         self.lowest = min(self.lowest, energy)
         gain = (energy - self.lowest) / self.start
+        largest, h = self._fastest(), self.particles.grid.h
+        if largest > self.speed_limit:
+            raise SolveFailed(f"energy growth: a particle reached {largest:.3g} m/s, more than "
+                              f"{self.SPEED_FACTOR:g} times the speed of a fall from the top of the box "
+                              f"({self.speed_limit / self.SPEED_FACTOR:.3g} m/s); the step is too large for the "
+                              f"flow ({largest * dt / h:.1f} cells per step)")
         if gain > self.gain_limit:
             grid = self.particles.grid
-            largest = grid.comm.allreduce(float(np.linalg.norm(self.particles["velocity"], axis=1).max(initial=0.0)),
-                                          op=MPI.MAX)
             raise SolveFailed(f"energy growth: the mechanical energy rose by {100 * gain:.0f} % of its start, "
                               f"which gravity and walls at rest cannot give; the step is too large for the flow "
                               f"(fastest particle {largest:.3g} m/s, {largest * dt / grid.h:.1f} cells per step)")
