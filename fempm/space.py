@@ -175,7 +175,8 @@ class Space:
                 return hit[0][:, :num_jets], hit[1]
         phi = self.basis.tabulate(particles.cell, particles.xi, order)
         lfun = self.local_functions_of_cells(particles.cell)
-        particles.cache[(id(self.basis), order)] = (phi, lfun)
+        # the basis is kept with its tabulation: alive, its id cannot be reused by another basis
+        particles.cache[(id(self.basis), order)] = (phi, lfun, self.basis)
         return phi, lfun
 
     # -- vectors ----------------------------------------------------------------------
