@@ -5,8 +5,15 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-__all__ = ["front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
+__all__ = ["fastest", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
            "surface_height"]
+
+
+def fastest(particles) -> float:
+    """The largest particle speed on all ranks."""
+    v = particles["velocity"]
+    speed = np.sqrt(np.einsum("ij,ij->i", v, v))
+    return particles.grid.comm.allreduce(float(speed.max(initial=0.0)), op=MPI.MAX)
 
 
 def lowest_corner(grid, gravity) -> np.ndarray:

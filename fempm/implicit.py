@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from mpi4py import MPI
 
-from fempm import transfer
+from fempm import diagnostics, transfer
 from fempm.bases import Basis
 from fempm.density import DensityError
 from fempm.options import Controls, Physics, Scheme
@@ -156,8 +156,7 @@ class ImplicitSolver(Stepper):
     # -- what an adaptive step needs ---------------------------------------------------------
     def fastest(self) -> float:
         """The largest particle speed on all ranks."""
-        speed = np.sqrt(np.einsum("ij,ij->i", self.particles["velocity"], self.particles["velocity"]))
-        return self.grid.comm.allreduce(float(speed.max(initial=0.0)), op=MPI.MAX)
+        return diagnostics.fastest(self.particles)
 
     def cell_size(self) -> float:
         """The grid's cell size."""

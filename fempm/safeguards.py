@@ -68,17 +68,13 @@ class EnergyWatch:
         corners = np.array([[x, y] for x in (grid.lower[0], grid.upper[0]) for y in (grid.lower[1], grid.upper[1])])
         drop = float(np.max(-(corners - self.datum) @ np.asarray(gravity, dtype=float)))  # |g| H
         self.fall_speed = np.sqrt(2 * drop)
-        self.speed_limit = np.hypot(self.FALL_FACTOR * self.fall_speed, self.START_FACTOR * self._fastest())
-
-    def _fastest(self) -> float:
-        speeds = np.linalg.norm(self.particles["velocity"], axis=1)
-        return self.particles.grid.comm.allreduce(float(speeds.max(initial=0.0)), op=MPI.MAX)
+        self.speed_limit = np.hypot(self.FALL_FACTOR * self.fall_speed, self.START_FACTOR * diagnostics.fastest(self.particles))
 
     def __call__(self, dt: float):
         energy = diagnostics.mechanical_energy(self.particles, self.gravity, self.datum)
         self.lowest = min(self.lowest, energy)
         gain = (energy - self.lowest) / self.start
-        largest, h = self._fastest(), self.particles.grid.h
+        largest, h = diagnostics.fastest(self.particles), self.particles.grid.h
         if largest > self.speed_limit:
             raise SolveFailed(f"energy growth: a particle reached {largest:.3g} m/s, above {self.speed_limit:.3g} "
                               f"m/s ({self.FALL_FACTOR:g} times a fall from the top of the box, "

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from mpi4py import MPI
 
-from fempm import linear, output, recording
+from fempm import diagnostics, linear, output, recording
 from fempm.bases import BASES
 from fempm.errors import InputError
 from fempm.formsfile import reporting_errors
@@ -77,8 +77,7 @@ def pressure_limit(scene: Scene, particles: Particles) -> float:
     """
     if scene.solver.pressure_limit is not None:
         return scene.solver.pressure_limit
-    comm = particles.grid.comm
-    speed = comm.allreduce(float(np.linalg.norm(particles["velocity"], axis=1).max(initial=0.0)), op=MPI.MAX)
+    speed = diagnostics.fastest(particles)
     d = scene.domain
     height, gravity = d.upper[1] - d.lower[1], float(np.hypot(*scene.gravity))
     scale = max(gravity * height + speed**2, (0.01 * d.h / scene.time.dt) ** 2)

@@ -229,7 +229,7 @@ def test_a_full_disk_stops_the_run_naming_the_file(tmp_path, size, fails_at):
     ADIOS2 would abort the process (on main: an OSError traceback mid-run; exit 134 and a hidden
     folder at the end)."""
     disk = tmp_path / "disk"
-    if not _tmpfs(disk, size):
+    if not _tmpfs(disk, size):  # a full disk needs a file system of its own; CI runs as root and mounts it
         pytest.skip("needs a small file system (mount -t tmpfs; this process may not mount)")
     try:
         (tmp_path / "scene.toml").write_text(_short())

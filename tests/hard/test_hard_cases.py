@@ -113,8 +113,7 @@ def test_dam_break_of_a_very_viscous_fluid(full):
     o = measured("viscous", full)
     assert_sound(o, 800, speed_ratio=1.08, energy_max=1.0 + bound(full, EXACT, 1e-4),
                  energy_rise=bound(full, EXACT, 1e-4))  # measured 1.0783, 1.0, 0 (affine 1.0735, FLIP/PIC 1.059)
-    # measured 1.090 (0.6 s; affine 1.085); FLIP/PIC 1.055 (0.6 s), 1.06 (3 s)
-    assert 1.05 <= cell_ratio(o) <= 1.09
+    assert 1.05 <= cell_ratio(o) <= 1.10  # measured 1.090 (0.6 s; affine 1.085); FLIP/PIC 1.055 (0.6 s), 1.06 (3 s)
 
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
