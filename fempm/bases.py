@@ -8,7 +8,14 @@
 
 In one direction a basis is stored as polynomial coefficients per cell,
 ``N_a(xi) = sum_m c[i, a, m] xi**m`` for the ``k + 1`` functions non-zero in cell
-``i`` (``xi`` in [0, 1]). The 2-D functions of a cell are the products, numbered
+``i`` (``xi`` in [0, 1]).
+
+A tank that is not a whole number of cells has its last column (row) cut at the
+face, ``last`` cells wide (:class:`fempm.grid.Grid`): the last knot span is then
+``last h`` long (knots ``0, .., 0, 1, 2, .., n-1, n-1+last, .., n-1+last`` in cells),
+which is the clamped basis of the tank itself, with as many functions, interpolating
+at the face. Only the last cells' coefficients change (``xi`` in [0, last] there);
+``xi`` keeps its scale ``h``, so jets, tabulation and the structured numbering do not. The 2-D functions of a cell are the products, numbered
 ``a + (k + 1) * b`` locally and ``(i + a) + nfx * (j + b)`` globally.
 
 Derivatives are *jets*: ``d^(a+b) N / dxi^a deta^b`` in the cell's reference
@@ -86,8 +93,8 @@ class Basis:
 
     def __init__(self, grid: Grid):
         self.grid = grid
-        self.coef_x = self._coefficients(grid.nx)
-        self.coef_y = self._coefficients(grid.ny)
+        self.coef_x = self._coefficients(grid.nx, float(grid.last[0]))
+        self.coef_y = self._coefficients(grid.ny, float(grid.last[1]))
         self.nfx = grid.nx + self.functions_per_direction_extra
         self.nfy = grid.ny + self.functions_per_direction_extra
         self.num_functions = self.nfx * self.nfy
@@ -95,8 +102,15 @@ class Basis:
 
     functions_per_direction_extra: int
 
-    def _coefficients(self, n: int) -> np.ndarray:
+    def _coefficients(self, n: int, last: float) -> np.ndarray:
+        """Per-cell polynomial coefficients of ``n`` cells, the last ``last`` cells wide."""
         raise NotImplementedError
+
+    def knots(self, n: int, last: float = 1.0) -> np.ndarray:
+        """The clamped knot vector (in cells) of ``n`` cells, the last ``last`` wide: the end knots
+        repeated ``degree + 1`` times."""
+        k = self.degree
+        return np.concatenate([np.zeros(k), np.arange(n, dtype=np.float64), np.full(k + 1, n - 1 + last)])
 
     def cell_functions(self, cells) -> np.ndarray:
         """Global (structured) indices of the functions non-zero in each cell.
@@ -135,9 +149,9 @@ class Basis:
 
     @cached_property
     def integrals(self) -> np.ndarray:
-        """``int N_i dx`` over the whole grid for every function, exact (Gauss)."""
+        """``int N_i dx`` over the tank for every function, exact (Gauss; in a cut cell over its part)."""
         pts, wts = np.polynomial.legendre.leggauss(self.degree + 1)
-        return self._integrals(0.5 * (pts + 1.0), 0.5 * wts)
+        return self._integrals(0.5 * (pts + 1.0), 0.5 * wts, scaled=True)
 
     def lattice_integrals(self, per_cell: int) -> np.ndarray:
         """``int N_i dx`` by the rule of ``per_cell x per_cell`` particles at sub-cell centres.
@@ -145,17 +159,31 @@ class Basis:
         What a uniformly seeded material gives for ``sum_p V_p N_i(x_p)`` over a full
         grid: with it the smoothed density of undisturbed seeded particles is exactly
         their density, also for the wall B-splines, which the midpoint rule does not
-        integrate exactly.
+        integrate exactly. In a cut cell the lattice's points inside the tank count (those
+        seeding puts there); a function none of them reaches (a cut thinner than half a
+        sub-cell) takes its exact integral.
         """
-        return self._integrals((np.arange(per_cell) + 0.5) / per_cell, np.full(per_cell, 1.0 / per_cell))
+        lattice = self._integrals((np.arange(per_cell) + 0.5) / per_cell, np.full(per_cell, 1.0 / per_cell),
+                                  scaled=False)
+        return np.where(lattice > 0.0, lattice, self.integrals) if self.grid.cut else lattice
 
-    def _integrals(self, pts_1d, wts_1d) -> np.ndarray:
+    def _integrals(self, pts_1d, wts_1d, scaled: bool) -> np.ndarray:
+        """``sum`` over cells and points of ``w N_i(xi)``: in a cut cell the rule is shrunk onto its
+        part (``scaled``) or its points beyond the face are left out."""
+        grid = self.grid
         xi = np.stack(np.meshgrid(pts_1d, pts_1d, indexing="ij"), -1).reshape(-1, 2)
-        w = np.outer(wts_1d, wts_1d).ravel() * self.grid.h**2
-        cells = np.repeat(np.arange(self.grid.num_cells), len(w))
-        values = self.tabulate(cells, np.tile(xi, (self.grid.num_cells, 1)), order=0)[:, 0, :]
+        w = np.outer(wts_1d, wts_1d).ravel() * grid.h**2
+        cells = np.repeat(np.arange(grid.num_cells), len(w))
+        xi, w = np.tile(xi, (grid.num_cells, 1)), np.tile(w, grid.num_cells)
+        if grid.cut:
+            width = grid.cell_sizes(cells) / grid.h  # 1, or the cut's width in cells
+            if scaled:
+                xi, w = xi * width, w * width.prod(axis=1)
+            else:
+                w = np.where(np.all(xi <= width + 1e-12, axis=1), w, 0.0)
+        values = self.tabulate(cells, xi, order=0)[:, 0, :]
         out = np.zeros(self.num_functions)
-        np.add.at(out, self.cell_functions(cells), values * np.tile(w, self.grid.num_cells)[:, None])
+        np.add.at(out, self.cell_functions(cells), values * w[:, None])
         return out
 
 
@@ -167,10 +195,11 @@ class Q1(Basis):
     name = "Q1"
     functions_per_direction_extra = 1
 
-    def _coefficients(self, n: int) -> np.ndarray:
+    def _coefficients(self, n: int, last: float) -> np.ndarray:
         c = np.zeros((n, 2, 2))
         c[:, 0] = [1.0, -1.0]  # 1 - xi
         c[:, 1] = [0.0, 1.0]  # xi
+        c[-1] = [[1.0, -1.0 / last], [0.0, 1.0 / last]]  # the last node on the face
         return c
 
 
@@ -205,17 +234,18 @@ class BSpline2(Basis):
     name = "B-spline"
     functions_per_direction_extra = 2
 
-    def _coefficients(self, n: int) -> np.ndarray:
-        knots = np.concatenate([[0.0, 0.0], np.arange(n + 1.0), [n, n]])
+    def _coefficients(self, n: int, last: float) -> np.ndarray:
+        knots = self.knots(n, last)
         samples = np.array([0.25, 0.5, 0.75])  # inside the span: no end-point ambiguity
-        vandermonde_inv = np.linalg.inv(np.vander(samples, 3, increasing=True))
         c = np.zeros((n, 3, 3))
-        # cells 2 .. n-3 see only simple knots: all alike, so compute the two cells at each
-        # wall and one interior cell (each evaluation costs O(n))
+        # cells 2 .. n-3 see only simple knots of unit spacing (a cut last span reaches back to
+        # cell n-2 only): all alike, so compute the two cells at each wall and one interior cell
+        # (each evaluation costs O(n))
         explicit = sorted({i for i in (0, 1, 2, n - 2, n - 1) if 0 <= i < n}) if n > 5 else range(n)
         for i in explicit:
-            values = _bspline_values(knots, 2, i + samples)[:, i : i + 3]  # (samples, functions)
-            c[i] = (vandermonde_inv @ values).T
+            span = last if i == n - 1 else 1.0
+            values = _bspline_values(knots, 2, i + span * samples)[:, i : i + 3]  # (samples, functions)
+            c[i] = (np.linalg.inv(np.vander(span * samples, 3, increasing=True)) @ values).T
         if n > 5:
             c[3 : n - 2] = c[2]
         return c

@@ -5,9 +5,18 @@ and row counted from the lower-left corner. A point is located by arithmetic,
 ``i = floor((x - x0) / h)``, in O(1) per point. The DOLFINx mesh of the same cells
 is distributed over the ranks by DOLFINx's partitioner; ``owner`` and
 ``local_cell`` translate between the structured numbering and DOLFINx's.
+
+**Any tank size.** The cells are squares of size ``h`` laid from the lower-left corner;
+where a side of the tank is not a whole number of cells, the last column (row) is cut
+at the tank's face: ``nx = ceil(width / h)`` cells, the last ``last[0] h`` wide
+(``0 < last <= 1``, 1 for a whole number). The DOLFINx mesh's last vertex column lies
+on the face, so its cells are the tank's; the bases end their knots there
+(:mod:`fempm.bases`), and the walls stay on the faces.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from mpi4py import MPI
@@ -16,20 +25,23 @@ import dolfinx.mesh
 
 from fempm.errors import InputError, ParticleOutsideGridError
 
-__all__ = ["Grid", "cell_counts", "square_cell_size"]
+__all__ = ["Grid", "cell_counts", "last_widths", "square_cell_size"]
 
 # Points within this fraction of a cell outside the grid (round-off of a
 # position on a wall) are taken to lie on the wall.
 _WALL_TOLERANCE = 1e-10
 
 
-def _whole_cells(length: float, h: float, name: str) -> int:
+def _covering(length: float, h: float, name: str) -> tuple[int, float]:
+    """Cells of size ``h`` covering ``length`` from its start, and the last one's width in cells
+    (1 when ``length`` is a whole number of cells, to a relative 1e-9)."""
     n = round(length / h)
-    if n < 1 or abs(n * h - length) > 1e-9 * length:
-        raise InputError(
-            f"grid: the {name} ({length:g}) is not a whole number of cells of size h = {h:g}"
-        )
-    return int(n)
+    if n >= 1 and abs(n * h - length) <= 1e-9 * length:
+        return int(n), 1.0
+    if h > length:
+        raise InputError(f"grid: the cell size h = {h:g} exceeds the {name} ({length:g})")
+    n = math.ceil(length / h)
+    return int(n), (length - (n - 1) * h) / h
 
 
 def _box(lower, upper) -> tuple[np.ndarray, np.ndarray]:
@@ -41,32 +53,49 @@ def _box(lower, upper) -> tuple[np.ndarray, np.ndarray]:
     return lower, upper
 
 
-def cell_counts(lower, upper, h: float) -> tuple[int, int]:
-    """Cells per direction of square cells of size ``h`` over ``[lower, upper]``.
-
-    Raises:
-        InputError: ``h`` is not positive, ``upper`` does not exceed ``lower``, or a side
-            is not a whole number of cells.
-    """
+def _sides(lower, upper, h: float) -> tuple[tuple[int, float], tuple[int, float]]:
     lower, upper = _box(lower, upper)
     if not (np.isfinite(h) and h > 0):
         raise InputError(f"grid: the cell size h must be positive, got {h}")
-    return _whole_cells(upper[0] - lower[0], h, "width"), _whole_cells(upper[1] - lower[1], h, "height")
+    return _covering(upper[0] - lower[0], h, "width"), _covering(upper[1] - lower[1], h, "height")
+
+
+def cell_counts(lower, upper, h: float) -> tuple[int, int]:
+    """Cells per direction of square cells of size ``h`` covering ``[lower, upper]`` (the last
+    column and row cut at the tank's faces where a side is not a whole number of cells).
+
+    Raises:
+        InputError: ``h`` is not positive or exceeds a side, or ``upper`` does not exceed ``lower``.
+    """
+    (nx, _), (ny, _) = _sides(lower, upper, h)
+    return nx, ny
+
+
+def last_widths(lower, upper, h: float) -> tuple[float, float]:
+    """The width of the last column and the height of the last row, in cells: in (0, 1], 1 uncut."""
+    (_, rx), (_, ry) = _sides(lower, upper, h)
+    return rx, ry
 
 
 def square_cell_size(lower, upper, cells) -> float:
-    """The size of the cells when ``cells = (nx, ny)`` cut ``[lower, upper]``; they must be square."""
+    """The size of the cells when ``cells = (nx, ny)`` cover ``[lower, upper]``.
+
+    The cells are square, ``h = width / nx``; the height is a whole number of them, or
+    ``ny`` is the number of rows covering it, ``ceil(height / h)``, the top row cut.
+    """
     lower, upper = _box(lower, upper)
     nx, ny = (int(n) for n in cells)
     if nx < 1 or ny < 1:
         raise InputError(f"grid: the number of cells must be positive, got {cells}")
-    hx, hy = (upper[0] - lower[0]) / nx, (upper[1] - lower[1]) / ny
-    if abs(hx - hy) > 1e-9 * max(hx, hy):
+    h = (upper[0] - lower[0]) / nx
+    rows, _ = _covering(upper[1] - lower[1], h, "height") if h <= upper[1] - lower[1] else (0, 0.0)
+    if rows != ny:
         raise InputError(
             f"grid: cells must be square, but {nx} x {ny} cells over "
-            f"{upper[0] - lower[0]:g} x {upper[1] - lower[1]:g} give hx = {hx:g}, hy = {hy:g}"
+            f"{upper[0] - lower[0]:g} x {upper[1] - lower[1]:g} give hx = {h:g}, "
+            f"hy = {(upper[1] - lower[1]) / ny:g} (with h = {h:g} the height takes {rows} rows)"
         )
-    return hx
+    return h
 
 
 def bisect(weights: np.ndarray, parts: int) -> np.ndarray:
@@ -105,7 +134,8 @@ class Grid:
         comm: MPI communicator the DOLFINx mesh is distributed over.
         lower: ``(x0, y0)``.
         upper: ``(x1, y1)``.
-        h: cell size; the width and height must be whole multiples of it.
+        h: cell size, at most the width and the height; where a side is not a whole multiple
+            of it, the last column or row is cut at the tank's face (see the module).
         weights: work expected in each structured cell (e.g. its particles), to share
             the cells between the ranks by weighted recursive coordinate bisection.
             Default: DOLFINx's graph partitioner, which shares cells by number, so
@@ -114,6 +144,9 @@ class Grid:
     Attributes:
         mesh: the DOLFINx quadrilateral mesh.
         nx, ny: cells per direction.
+        last: ``(width of the last column, height of the last row)`` in cells, each in (0, 1]
+            (1: the side is a whole number of cells).
+        cut: whether a side is cut (``last < 1`` in either direction).
         owner: ``owner[cell]`` is the rank owning each structured cell.
         local_cell: ``local_cell[cell]`` is the local DOLFINx cell index on this
             rank, or -1 where this rank does not own the cell.
@@ -124,20 +157,28 @@ class Grid:
     """
 
     def __init__(self, comm: MPI.Comm, lower, upper, h: float, weights=None):
-        self.nx, self.ny = cell_counts(lower, upper, h)
+        (self.nx, rx), (self.ny, ry) = _sides(lower, upper, h)
         self.comm = comm
         self.lower = np.asarray(lower, dtype=np.float64)
         self.upper = np.asarray(upper, dtype=np.float64)
         self.h = float(h)
+        self.last = np.array([rx, ry])
+        self.cut = bool(np.any(self.last < 1.0))
+        self._extent = np.array([self.nx - 1 + rx, self.ny - 1 + ry])  # the tank's size in cells
         self.num_cells = self.nx * self.ny
+        # the uniform lattice of the cells; a cut side's last vertices are then moved onto its face
+        lattice_upper = np.where(self.last < 1.0, self.lower + self.h * np.array([self.nx, self.ny]), self.upper)
         self.mesh = dolfinx.mesh.create_rectangle(
             comm,
-            [self.lower, self.upper],
+            [self.lower, lattice_upper],
             [self.nx, self.ny],
             dolfinx.mesh.CellType.quadrilateral,
             ghost_mode=dolfinx.mesh.GhostMode.none,
             partitioner=None if weights is None or comm.size == 1 else self._partitioner(weights),
         )
+        if self.cut:
+            x = self.mesh.geometry.x
+            x[:, :2] = np.minimum(x[:, :2], self.upper)
         n_owned = self.mesh.topology.index_map(2).size_local
         mid = dolfinx.mesh.compute_midpoints(self.mesh, 2, np.arange(n_owned, dtype=np.int32))
         ij = np.floor((mid[:, :2] - self.lower) / self.h).astype(np.int64)
@@ -195,8 +236,16 @@ class Grid:
         cells = np.asarray(cells)
         return self.lower + self.h * np.stack([cells % self.nx, cells // self.nx], axis=-1)
 
+    def cell_sizes(self, cells) -> np.ndarray:
+        """Width and height of the given structured cells, shape ``(n, 2)``: ``h``, or less in a
+        cut last column or row."""
+        cells = np.asarray(cells)
+        ij = np.stack([cells % self.nx, cells // self.nx], axis=-1)
+        return self.h * np.where(ij == np.array([self.nx, self.ny]) - 1, self.last, 1.0)
+
     def locate(self, x: np.ndarray, ids: np.ndarray | None = None):
-        """Structured cell and reference coordinates in ``[0, 1]^2`` of each point.
+        """Structured cell and reference coordinates in ``[0, 1]^2`` of each point (in a cut
+        last column or row, ``xi`` in ``[0, last]``).
 
         Args:
             x: positions, shape ``(n, 2)``.
@@ -219,13 +268,12 @@ class Grid:
         s = (x - self.lower) / self.h
         n = np.array([self.nx, self.ny])
         ij = np.clip(np.floor(s).astype(np.int64), 0, n - 1)
-        xi = np.clip(s - ij, 0.0, 1.0)
+        xi = np.clip(s - ij, 0.0, np.where(ij == n - 1, self.last, 1.0) if self.cut else 1.0)
         return ij[:, 0] + self.nx * ij[:, 1], xi
 
     def outside(self, x: np.ndarray) -> np.ndarray:
-        """Boolean mask of the points outside the grid (or not finite)."""
+        """Boolean mask of the points outside the tank (or not finite)."""
         s = (np.asarray(x, dtype=np.float64).reshape(-1, 2) - self.lower) / self.h
-        n = np.array([self.nx, self.ny])
         return ~np.all(np.isfinite(s), axis=1) | np.any(
-            (s < -_WALL_TOLERANCE) | (s > n + _WALL_TOLERANCE), axis=1
+            (s < -_WALL_TOLERANCE) | (s > self._extent + _WALL_TOLERANCE), axis=1
         )

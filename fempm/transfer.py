@@ -175,7 +175,8 @@ def function_nodes(space: Space) -> np.ndarray:
 
     Both bases are clamped B-splines on the grid's uniform knots (Q1 of degree 1), and the
     node is the function's Greville abscissa, the mean of its ``k`` inner knots: the grid
-    nodes for Q1; the cell centres and the walls for the quadratic B-splines. With these,
+    nodes for Q1; the cell centres and the walls for the quadratic B-splines (a cut last cell's
+    centre and the face, :mod:`fempm.bases`). With these,
     ``sum_i N_i(x) x_i = x`` everywhere (the bases reproduce linear fields with these
     coefficients), which makes affine P2G and G2P exact on affine fields and
     ``sum_i N_i(x_p) (x_i - x_p) = 0``, on which the conservation of momentum rests.
@@ -185,11 +186,11 @@ def function_nodes(space: Space) -> np.ndarray:
     if cached is None:
         grid, k = basis.grid, basis.degree
 
-        def greville(n):  # the mean of knots i+1 .. i+k of function i
-            knots = np.concatenate([np.zeros(k), np.arange(n + 1.0), np.full(k, float(n))])
+        def greville(n, last):  # the mean of knots i+1 .. i+k of function i
+            knots = basis.knots(n, last)
             return np.lib.stride_tricks.sliding_window_view(knots[1:], k).mean(axis=1)[: n + k]
 
-        gx, gy = greville(grid.nx), greville(grid.ny)
+        gx, gy = greville(grid.nx, float(grid.last[0])), greville(grid.ny, float(grid.last[1]))
         f = np.arange(basis.num_functions)
         cached = np.column_stack([grid.lower[0] + grid.h * gx[f % basis.nfx],
                                   grid.lower[1] + grid.h * gy[f // basis.nfx]])
