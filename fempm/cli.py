@@ -22,7 +22,7 @@ from mpi4py import MPI
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 from fempm import simulation
 from fempm.errors import FempmError
-from fempm.scene import available_memory, check_size, load_scene, seeded_bodies, to_toml
+from fempm.scene import available_memory, check_size, describe_grid, load_scene, seeded_bodies, to_toml
 
 __all__ = ["Interrupted", "main"]
 
@@ -144,7 +144,8 @@ def _check(args, comm, memory: dict) -> int:
                   f"({round(100 * (seeded - asked) / asked, 2) + 0.0:+.2f} %: bodies are rounded to the particle "
                   f"lattice)")
         print(f"# size: {size.summary()}")
-        print(f"# {solver.grid.nx} x {solver.grid.ny} cells of h = {solver.grid.h:g} m, "
+        grid = solver.grid
+        print(f"# {describe_grid(grid.nx, grid.ny, grid.h, grid.last)}, "
               f"{int(solver.grid.blocked.sum())} blocked by obstacles; {solver.particles.global_count()} particles; "
               f"{scene.time.steps} steps of {scene.time.dt:g} s; {comm.size} rank(s)")
     return 0

@@ -34,7 +34,7 @@ class DensityError:
     def __init__(self, space: Space):
         grid = space.grid
         cells = grid.owned_cells
-        self.centre_values = space.basis.tabulate(cells, np.full((len(cells), 2), 0.5), order=0)[:, 0, :]
+        self.centre_values = space.basis.tabulate(cells, 0.5 * grid.cell_sizes(cells) / grid.h, order=0)[:, 0, :]
         self.cell_functions = space.local_functions_of_cells(cells)
         self._shallow = GridFunction(space, "shallow_cells")
 

@@ -137,8 +137,9 @@ class Sampler:
         self._points = _Points(grid, points)
         self._wet_points = _Points(grid, np.clip(points, *inner))
         gauss, weights = np.polynomial.legendre.leggauss(level_points)
-        y = grid.lower[1] + grid.h * (np.arange(grid.ny)[:, None] + 0.5 * (gauss + 1.0)).ravel()
-        self._weights = np.tile(0.5 * weights * grid.h, grid.ny)
+        rows = np.where(np.arange(grid.ny) == grid.ny - 1, grid.last[1], 1.0)[:, None]  # a cut top row's height
+        y = grid.lower[1] + grid.h * (np.arange(grid.ny)[:, None] + rows * 0.5 * (gauss + 1.0)).ravel()
+        self._weights = (rows * 0.5 * weights * grid.h).ravel()
         lines = [np.column_stack([np.full_like(y, np.clip(g.x, inner[0][0], inner[1][0])), y]) for g in self._level]
         self._lines = _Points(grid, np.concatenate(lines) if lines else np.zeros((0, 2)))
         self._per_line = len(y)

@@ -212,7 +212,7 @@ class Grid:
 
     @classmethod
     def from_cells(cls, comm: MPI.Comm, lower, upper, cells, weights=None) -> "Grid":
-        """A grid given by its number of cells per direction; the cells must be square."""
+        """A grid given by its number of cells per direction: ``h = width / nx``, ``ny`` the rows covering the height."""
         return cls(comm, lower, upper, square_cell_size(lower, upper, cells), weights)
 
     def block(self, cells):

@@ -282,6 +282,9 @@ class GridSeries(_Series):
     (the grid vertices for Q1; vertices, edge midpoints and cell centres for the
     B-spline, whose values there are exact), which ParaView draws bilinearly between
     the nodes. Every rank samples the nodes of its own cells; rank 0 writes one file.
+    An image's points are evenly spaced: where the tank's last column or row is cut
+    (:class:`fempm.grid.Grid`), the image reaches past the face to the next point, and the
+    points beyond the face hold NaN (blank in ParaView).
     """
 
     extension = "vti"
@@ -297,7 +300,8 @@ class GridSeries(_Series):
         a, b = a.ravel(), b.ravel()
         i, j = np.minimum(a // k, grid.nx - 1), np.minimum(b // k, grid.ny - 1)
         cells = grid.cell_index(i, j)
-        mine = grid.owner[cells] == grid.comm.rank
+        points = grid.lower + np.column_stack([a, b]) * (grid.h / k)
+        mine = (grid.owner[cells] == grid.comm.rank) & ~grid.outside(points)  # beyond a cut face: NaN
         self.nodes, self.cells = np.flatnonzero(mine), cells[mine]
         self.xi = np.column_stack([a[mine] / k - i[mine], b[mine] / k - j[mine]])
         self.comm = grid.comm
@@ -331,7 +335,7 @@ class GridSeries(_Series):
         nodes = np.concatenate([p[0] for p in parts])
         for name, k in (("velocity", 1), ("pressure", 2)):
             values = np.concatenate([p[k] for p in parts])
-            out = np.zeros((image.n_points, *values.shape[1:]))
+            out = np.full((image.n_points, *values.shape[1:]), np.nan)
             out[nodes] = values
             image.point_data[name] = _three_d(out)
         filename = self._next_file()
@@ -363,6 +367,12 @@ class GridSeries(_Series):
         agree(self.comm, self._room_for_vtx(final, tmp, len(entries)) if self.comm.rank == 0 else None)
         grid, k = self.basis.grid, self.basis.degree
         mesh = grid.mesh
+        if grid.cut:  # the stream's nodes are the image's points: the uniform mesh of the image
+            import dolfinx.mesh
+
+            corner = grid.lower + grid.h * np.array([grid.nx, grid.ny])
+            mesh = dolfinx.mesh.create_rectangle(self.comm, [grid.lower, corner], [grid.nx, grid.ny],
+                                                 dolfinx.mesh.CellType.quadrilateral)
         spaces = {name: dolfinx.fem.functionspace(mesh, lagrange_element(mesh.basix_cell(), k, {name: n}))
                   for name, n in (("velocity", 2), ("pressure", 1))}
         functions = {name: dolfinx.fem.Function(V, name=name) for name, V in spaces.items()}
@@ -496,10 +506,10 @@ def _picture(path, grid, data, field, title, clim, point_size):
 
 
 def _cells_as_quads(grid, cells):
-    """The given structured cells as one pyvista surface of squares (obstacles in pictures)."""
+    """The given structured cells as one pyvista surface of rectangles (obstacles in pictures)."""
     import pyvista as pv
 
     corners = np.array([[0, 0], [1, 0], [1, 1], [0, 1]])
-    points = (grid.cell_origin(cells)[:, None, :] + grid.h * corners[None]).reshape(-1, 2)
+    points = (grid.cell_origin(cells)[:, None, :] + grid.cell_sizes(cells)[:, None, :] * corners[None]).reshape(-1, 2)
     faces = np.column_stack([np.full(len(cells), 4), np.arange(4 * len(cells)).reshape(-1, 4)])
     return pv.PolyData(np.column_stack([points, np.zeros(len(points))]), faces.ravel())

@@ -34,7 +34,7 @@ import numpy as np
 from fempm.errors import InputError
 from fempm.expressions import Expression
 from fempm.formsfile import forms_path, shipped_forms
-from fempm.grid import cell_counts, square_cell_size
+from fempm.grid import cell_counts, last_widths, square_cell_size
 from fempm.options import FLUID_REGION_CELLS, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
 from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, finite, folder_name, forms_name,
@@ -42,7 +42,7 @@ from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice,
                           square_count, text, times, velocity)
 
 __all__ = ["Body", "Domain", "Estimate", "Fluid", "Gauge", "MAX_STEPS", "Obstacle", "Output", "Scene", "Solver", "Time",
-           "Walls", "available_memory", "estimate", "load_scene", "parse_scene", "scene_from_text",
+           "Walls", "available_memory", "describe_grid", "estimate", "load_scene", "parse_scene", "scene_from_text",
            "seeded_bodies", "to_toml"]
 
 MAX_STEPS = 10**8  #: more steps than this in one run are refused (a mistaken time.dt or time.end)
@@ -50,7 +50,8 @@ MAX_STEPS = 10**8  #: more steps than this in one run are refused (a mistaken ti
 # -- the sections ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Domain:
-    """The tank: a rectangle cut into square cells, given by ``cells`` or by ``cell_size``."""
+    """The tank: a rectangle cut into square cells, given by ``cells`` or by ``cell_size``; where a side
+    is not a whole number of cells, the last column or row is cut at the tank's face."""
 
     lower: tuple[float, float] = key(point, unit="m")
     upper: tuple[float, float] = key(point, unit="m")
@@ -64,8 +65,13 @@ class Domain:
 
     @property
     def shape(self) -> tuple[int, int]:
-        """Cells per direction."""
+        """Cells per direction (the last column and row may be cut, see :attr:`last`)."""
         return tuple(self.cells) if self.cells else cell_counts(self.lower, self.upper, self.cell_size)
+
+    @property
+    def last(self) -> tuple[float, float]:
+        """The width of the last column and the height of the top row, in cells: in (0, 1], 1 uncut."""
+        return last_widths(self.lower, self.upper, self.h)
 
 
 @dataclass(frozen=True)
@@ -112,7 +118,8 @@ class Body(_Shaped):
 
 @dataclass(frozen=True)
 class Obstacle(_Shaped):
-    """A rigid obstacle: the cells whose centres lie in a rectangle or polygon, or listed cells."""
+    """A rigid obstacle: the cells whose centres lie in a rectangle or polygon (a cut cell's centre is
+    that of its part inside the tank), or listed cells."""
 
     shape: str = key(choice("rectangle", "polygon", "cells"))
     lower: tuple[float, float] | None = key(point, None, unit="m")
@@ -126,7 +133,9 @@ class Obstacle(_Shaped):
         if self.shape == "cells":
             return np.array([i + nx * j for i, j in self.cells], dtype=np.int64)
         all_cells = np.arange(nx * ny)
-        centres = np.asarray(domain.lower) + domain.h * (np.stack([all_cells % nx, all_cells // nx], -1) + 0.5)
+        ij = np.stack([all_cells % nx, all_cells // nx], -1)
+        sizes = np.where(ij == np.array([nx, ny]) - 1, domain.last, 1.0)  # a cut cell's centre is its part's
+        centres = np.asarray(domain.lower) + domain.h * (ij + 0.5 * sizes)
         return all_cells[self.geometry().contains(centres)]
 
 
@@ -439,17 +448,19 @@ def _check_shape_keys(item: _Shaped, table: dict, where: str):
             raise InputError(f"{where}: {e}") from None
 
 
-# -- the grid: square cells whose outer faces are the walls -------------------------------------------
+# -- the grid: square cells from the tank's lower corner, the last column and row cut at its faces --------
 def _grid_key(d: Domain) -> str:
     return "domain.cells" if d.cells else "domain.cell_size"
 
 
 def _resolve_grid(d: Domain) -> tuple[int, int, float]:
-    """``(nx, ny, h)`` of the domain, or a message giving the nearest tank sizes that fit.
+    """``(nx, ny, h)`` of the domain, or a message saying what fits.
 
-    The cells are square and the grid's outer faces are the tank's walls (the walls hold the
-    velocity of the boundary functions, and particles stop at the grid's faces), so each side
-    must be a whole number of cells: a tank that is not is refused, not cut or extended.
+    The cells are squares of size ``h`` laid from the tank's lower corner, and the tank's faces
+    are the walls; where a side is not a whole number of cells, its last column or row is cut
+    at the face (:class:`fempm.grid.Grid`). With ``cells = [nx, ny]``, ``h = width / nx`` and
+    ``ny`` must be the number of rows covering the height (the top row cut where the height is
+    not a whole number of them); a cell larger than a side is refused.
     """
     if (d.cells is None) == (d.cell_size is None):
         raise InputError("domain: give exactly one of cells = [nx, ny] and cell_size = h")
@@ -460,28 +471,32 @@ def _resolve_grid(d: Domain) -> tuple[int, int, float]:
         raise InputError(f"domain.upper {list(d.upper)} must exceed domain.lower {list(d.lower)}")
     if d.cells:
         nx, ny = d.cells
-        hx, hy = size[0] / nx, size[1] / ny
-        if abs(hx - hy) > 1e-9 * max(hx, hy):
-            fit = d.lower[1] + ny * hx
-            raise InputError(f"domain.cells = {list(d.cells)}: the cells must be square, but they would be "
-                             f"{hx:g} x {hy:g} m; for square cells of {hx:g} m take domain.upper = "
-                             f"[{d.upper[0]:g}, {fit:.10g}] or cells = [{nx}, {max(round(size[1] / hx), 1)}] "
-                             f"(then the height is {max(round(size[1] / hx), 1) * hx:.10g} m)")
-        return nx, ny, float(hx)
+        h = float(size[0] / nx)
+        rows = cell_counts(d.lower, d.upper, h)[1] if h <= size[1] else 0
+        if rows != ny:
+            cut = "" if abs(round(size[1] / h) * h - size[1]) <= 1e-9 * size[1] else ", the top one cut"
+            covering = (f"the height {size[1]:g} m takes {rows} rows of them{cut}" if rows
+                        else f"the height {size[1]:g} m is less than one of them")
+            raise InputError(f"domain.cells = {list(d.cells)}: the cells are square, {size[0]:g} m / {nx} = {h:g} m, "
+                             f"and {covering}, not {ny}: take cells = [{nx}, {max(rows, 1)}]"
+                             + ("" if rows == 0 else f", or cell_size = {size[1] / ny:.6g} for {ny} whole rows"))
+        return nx, ny, h
     h = d.cell_size
     counts = size / h
     if np.any(counts > 1e15):
         return int(min(counts[0], 2**62)), int(min(counts[1], 2**62)), h  # refused by the size estimate
-    bad = [(k, n) for k, n in enumerate(counts) if abs(round(n) - n) > 1e-9 * n or round(n) < 1]
-    if bad:
-        k, n = bad[0]
-        side = ("width", "height")[k]
-        low, high = max(math.floor(n), 1), max(math.ceil(n), 1)
-        raise InputError(f"domain.cell_size = {h:g}: the {side} {size[k]:g} m is not a whole number of cells "
-                         f"({n:.6g}); the cells are square and the tank's faces are the walls: take "
-                         f"domain.upper[{k}] = {d.lower[k] + low * h:.10g} or {d.lower[k] + high * h:.10g} "
-                         f"({low} or {high} cells), or a cell size dividing {size[k]:g} (e.g. {size[k] / high:.6g})")
-    return int(round(counts[0])), int(round(counts[1])), h
+    if np.any(h > size):
+        k = int(np.argmax(h > size))
+        raise InputError(f"domain.cell_size = {h:g}: larger than the tank's {('width', 'height')[k]} {size[k]:g} m; "
+                         f"take at most {size.min():g} (m)")
+    nx, ny = cell_counts(d.lower, d.upper, h)
+    return nx, ny, h
+
+
+def describe_grid(nx: int, ny: int, h: float, last) -> str:
+    """``"40 x 39 cells of h = 0.015 m, the last column cut to 0.014 m (0.933 h)"``: the grid and its cuts."""
+    cuts = [f"the {what} cut to {r * h:.4g} m ({r:.3g} h)" for what, r in zip(("last column", "top row"), last) if r < 1]
+    return f"{nx} x {ny} cells of h = {h:g} m" + (", " + " and ".join(cuts) if cuts else "")
 
 
 # -- the size of a run, from the scene alone ---------------------------------------------------------------

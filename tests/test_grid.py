@@ -60,12 +60,23 @@ def test_non_square_cells_are_refused(comm, lower, upper, cells, message):
 
 @pytest.mark.parametrize(
     "upper, h, message",
-    [((1.0, 1.0), 0.3, "not a whole number of cells"), ((1.0, 1.0), -0.1, "must be positive"),
-     ((0.0, 1.0), 0.1, "must exceed lower")],
+    [((1.0, 1.0), -0.1, "must be positive"), ((0.0, 1.0), 0.1, "must exceed lower"),
+     ((1.0, 0.5), 0.6, r"the cell size h = 0.6 exceeds the height \(0.5\)")],
 )
 def test_bad_grid_sizes_are_refused(comm, upper, h, message):
     with pytest.raises(InputError, match=message):
         fempm.Grid(comm, (0.0, 0.0), upper, h)
+
+
+def test_a_tank_not_a_whole_number_of_cells_has_its_last_column_and_row_cut(comm):
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 1.0), 0.3)
+    assert (grid.nx, grid.ny) == (4, 4) and grid.last == pytest.approx([1 / 3, 1 / 3], rel=1e-12)
+    assert grid.cell_sizes([0, 3, 15]) == pytest.approx(np.array([[0.3, 0.3], [0.1, 0.3], [0.1, 0.1]]), rel=1e-12)
+    # cells = [nx, ny]: h from the width, the rows covering the height, the top one cut
+    grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (1.0, 0.75), (10, 8))
+    assert grid.h == pytest.approx(0.1) and grid.last == pytest.approx([1.0, 0.5], rel=1e-12)
+    with pytest.raises(InputError, match=r"with h = 0.1 the height takes 8 rows"):
+        fempm.Grid.from_cells(comm, (0.0, 0.0), (1.0, 0.75), (10, 7))
 
 
 @pytest.mark.mpi

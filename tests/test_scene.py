@@ -45,12 +45,14 @@ BAD_SCENES = [
     ("zero cells", _edit("cells = [40, 40]", "cells = [0, 40]"), [],
      r"domain.cells: must be a pair of whole numbers >= 1 \[nx, ny\], got \[0, 40\]"),
     ("cells not square", _edit("cells = [40, 40]", "cells = [40, 20]"), [],
-     r"domain.cells = \[40, 20\]: the cells must be square, but they would be 0.0146 x 0.0292 m; for square cells "
-     r"of 0.0146 m take domain.upper = \[0.584, 0.292\] or cells = \[40, 40\]"),
-    ("cell size not dividing the tank", _edit("cells = [40, 40]", "cell_size = 0.05"), [],
-     r"domain.cell_size = 0.05: the width 0.584 m is not a whole number of cells \(11.68\); the cells are square "
-     r"and the tank's faces are the walls: take domain.upper\[0\] = 0.55 or 0.6 \(11 or 12 cells\), or a cell "
-     r"size dividing 0.584"),
+     r"domain.cells = \[40, 20\]: the cells are square, 0.584 m / 40 = 0.0146 m, and the height 0.584 m takes 40 "
+     r"rows of them, not 20: take cells = \[40, 40\], or cell_size = 0.0292 for 20 whole rows"),
+    ("cells not covering a cut height", _edit("upper = [0.584, 0.584]", "upper = [0.584, 0.5]")
+     .replace("cells = [40, 40]", "cells = [40, 30]"), [],
+     r"domain.cells = \[40, 30\]: the cells are square, 0.584 m / 40 = 0.0146 m, and the height 0.5 m takes 35 "
+     r"rows of them, the top one cut, not 30: take cells = \[40, 35\], or cell_size = 0.0166667 for 30 whole rows"),
+    ("cell size larger than the tank", _edit("cells = [40, 40]", "cell_size = 0.6"), [],
+     r"domain.cell_size = 0.6: larger than the tank's width 0.584 m; take at most 0.584 \(m\)"),
     ("both cells and cell size", _edit("cells = [40, 40]", "cells = [40, 40]\ncell_size = 0.0146"), [],
      r"domain: give exactly one of cells = \[nx, ny\] and cell_size = h"),
     ("zero time step", _edit("dt = 1.0e-3", "dt = 0.0"), [], r"time.dt: must be a number > 0, got 0.0 \(s\)"),
@@ -179,10 +181,6 @@ BAD_SCENES = [
     ("velocity expression not finite", _edit("particles_per_cell = 4 ", 'particles_per_cell = 4\n'
                                                                         'velocity = [0, "sqrt(x - 0.01)"]'),
      [], r"bodies\[0\].velocity\[1\] = 'sqrt\(x - 0.01\)' is not finite at \(0.00365, 0.00365\) \(m/s\)"),
-    ("tank not a whole number of cells", _edit("upper = [0.584, 0.584]", "upper = [0.59, 0.584]")
-     .replace("cells = [40, 40]", "cell_size = 0.0146"), [],
-     r"domain.cell_size = 0.0146: the width 0.59 m is not a whole number of cells \(40.411\); the cells are square and "
-     r"the tank's faces are the walls: take domain.upper\[0\] = 0.584 or 0.5986 \(40 or 41 cells\)"),
     ("output folder with a NUL", _edit('folder = "results/dambreak"', 'folder = "o\\u0000x"'), [],
      r"output.folder: must not contain a NUL character, got 'o\\x00x'"),
     ("gauge of an unknown kind", _edit('kind = "level"\nx', 'kind = "depth"\nx'), [],
@@ -367,14 +365,22 @@ def test_a_shorter_end_time_leaves_out_later_snapshots_with_a_note():
     assert parse_scene(tomllib.loads(to_toml(scene)), "resolved.toml") == scene  # the resolved scene is valid
 
 
-def test_the_nearest_tank_sizes_offered_fit():
-    """The sizes a refusal offers are accepted (the walls stay on the grid's faces)."""
-    text = _edit("cells = [40, 40]", "cell_size = 0.0146").replace("upper = [0.584, 0.584]", "upper = [0.59, 0.584]")
-    with pytest.raises(fempm.InputError, match=r"take domain.upper\[0\] = 0.584 or 0.5986") as refusal:
-        scene_from_text(text, "tank.toml")
-    for width in re.search(r"= ([\d.]+) or ([\d.]+) ", str(refusal.value)).groups():
-        scene = scene_from_text(text.replace("upper = [0.59, 0.584]", f"upper = [{width}, 0.584]"), "tank.toml")
-        assert scene.domain.shape[0] * scene.domain.h == pytest.approx(float(width), rel=1e-12)
+def test_a_tank_not_a_whole_number_of_cells_is_cut_and_check_says_so(capsys, tmp_path):
+    """Any tank size: square cells from the lower corner, the last column (row) cut at the face."""
+    text = _edit("cells = [40, 40]", "cell_size = 0.015")  # 0.584 / 0.015 = 38.93 cells each way
+    scene = scene_from_text(text, "tank.toml")
+    assert scene.domain.shape == (39, 39) and scene.domain.h == 0.015
+    assert scene.domain.last == pytest.approx((0.584 / 0.015 - 38,) * 2, rel=1e-12)
+    path = tmp_path / "tank.toml"
+    path.write_text(text)
+    assert cli.main(["check", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert ("# 39 x 39 cells of h = 0.015 m, the last column cut to 0.014 m (0.933 h) and the top row cut to "
+            "0.014 m (0.933 h), 0 blocked by obstacles") in out
+    # cells = [nx, ny] on a tank whose height is not a whole number of them: the top row cut
+    text = _edit("upper = [0.584, 0.584]", "upper = [0.584, 0.5]").replace("cells = [40, 40]", "cells = [40, 35]")
+    domain = scene_from_text(text, "tank.toml").domain
+    assert domain.h == pytest.approx(0.0146) and domain.last == pytest.approx((1.0, 0.5 / 0.0146 - 34), rel=1e-9)
 
 
 def test_an_adaptive_step_lifts_the_whole_step_rule():
