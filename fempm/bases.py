@@ -151,7 +151,7 @@ class Basis:
     def integrals(self) -> np.ndarray:
         """``int N_i dx`` over the tank for every function, exact (Gauss; in a cut cell over its part)."""
         pts, wts = np.polynomial.legendre.leggauss(self.degree + 1)
-        return self._integrals(0.5 * (pts + 1.0), 0.5 * wts, scaled=True)
+        return self._integrals(0.5 * (pts + 1.0), 0.5 * wts)
 
     def lattice_integrals(self, per_cell: int) -> np.ndarray:
         """``int N_i dx`` by the rule of ``per_cell x per_cell`` particles at sub-cell centres.
@@ -159,17 +159,13 @@ class Basis:
         What a uniformly seeded material gives for ``sum_p V_p N_i(x_p)`` over a full
         grid: with it the smoothed density of undisturbed seeded particles is exactly
         their density, also for the wall B-splines, which the midpoint rule does not
-        integrate exactly. In a cut cell the lattice's points inside the tank count (those
-        seeding puts there); a function none of them reaches (a cut thinner than half a
-        sub-cell) takes its exact integral.
+        integrate exactly. A cut cell has its own lattice, shrunk onto it, as seeding does.
         """
-        lattice = self._integrals((np.arange(per_cell) + 0.5) / per_cell, np.full(per_cell, 1.0 / per_cell),
-                                  scaled=False)
-        return np.where(lattice > 0.0, lattice, self.integrals) if self.grid.cut else lattice
+        return self._integrals((np.arange(per_cell) + 0.5) / per_cell, np.full(per_cell, 1.0 / per_cell))
 
-    def _integrals(self, pts_1d, wts_1d, scaled: bool) -> np.ndarray:
-        """``sum`` over cells and points of ``w N_i(xi)``: in a cut cell the rule is shrunk onto its
-        part (``scaled``) or its points beyond the face are left out."""
+    def _integrals(self, pts_1d, wts_1d) -> np.ndarray:
+        """``sum`` over cells and points of ``w N_i(xi)`` (a rule on the unit square, times ``h^2``;
+        in a cut cell shrunk onto it)."""
         grid = self.grid
         xi = np.stack(np.meshgrid(pts_1d, pts_1d, indexing="ij"), -1).reshape(-1, 2)
         w = np.outer(wts_1d, wts_1d).ravel() * grid.h**2
@@ -177,10 +173,7 @@ class Basis:
         xi, w = np.tile(xi, (grid.num_cells, 1)), np.tile(w, grid.num_cells)
         if grid.cut:
             width = grid.cell_sizes(cells) / grid.h  # 1, or the cut's width in cells
-            if scaled:
-                xi, w = xi * width, w * width.prod(axis=1)
-            else:
-                w = np.where(np.all(xi <= width + 1e-12, axis=1), w, 0.0)
+            xi, w = xi * width, w * width.prod(axis=1)
         values = self.tabulate(cells, xi, order=0)[:, 0, :]
         out = np.zeros(self.num_functions)
         np.add.at(out, self.cell_functions(cells), values * w[:, None])

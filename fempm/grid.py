@@ -25,7 +25,7 @@ import dolfinx.mesh
 
 from fempm.errors import InputError, ParticleOutsideGridError
 
-__all__ = ["Grid", "cell_counts", "last_widths", "square_cell_size"]
+__all__ = ["Grid", "cell_counts", "cell_shares", "last_widths", "square_cell_size"]
 
 # Points within this fraction of a cell outside the grid (round-off of a
 # position on a wall) are taken to lie on the wall.
@@ -96,6 +96,14 @@ def square_cell_size(lower, upper, cells) -> float:
             f"hy = {(upper[1] - lower[1]) / ny:g} (with h = {h:g} the height takes {rows} rows)"
         )
     return h
+
+
+def cell_shares(cells, counts, last) -> np.ndarray:
+    """Width and height of structured cells in cells, ``(n, 2)``: 1, or ``last`` in the last column
+    or row of a grid of ``counts = (nx, ny)`` cells (:attr:`Grid.last`)."""
+    cells = np.asarray(cells)
+    ij = np.stack([cells % counts[0], cells // counts[0]], axis=-1)
+    return np.where(ij == np.asarray(counts) - 1, np.asarray(last, dtype=np.float64), 1.0)
 
 
 def bisect(weights: np.ndarray, parts: int) -> np.ndarray:
@@ -239,9 +247,7 @@ class Grid:
     def cell_sizes(self, cells) -> np.ndarray:
         """Width and height of the given structured cells, shape ``(n, 2)``: ``h``, or less in a
         cut last column or row."""
-        cells = np.asarray(cells)
-        ij = np.stack([cells % self.nx, cells // self.nx], axis=-1)
-        return self.h * np.where(ij == np.array([self.nx, self.ny]) - 1, self.last, 1.0)
+        return self.h * cell_shares(cells, (self.nx, self.ny), self.last)
 
     def locate(self, x: np.ndarray, ids: np.ndarray | None = None):
         """Structured cell and reference coordinates in ``[0, 1]^2`` of each point (in a cut

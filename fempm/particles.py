@@ -124,27 +124,33 @@ def _crossing_edges(v: np.ndarray) -> tuple[int, int] | None:
     return (int(i[hit[0]]), int(j[hit[0]])) if len(hit) else None
 
 
-def sub_cell_centres(origins: np.ndarray, h: float, per_cell: int) -> np.ndarray:
-    """Centres of the ``per_cell x per_cell`` sub-cells of square cells with the given lower-left
-    corners, cell by cell (x fastest): where :meth:`Particles.seed` puts particles."""
+def sub_cell_centres(origins: np.ndarray, sizes, per_cell: int) -> np.ndarray:
+    """Centres of the ``per_cell x per_cell`` sub-cells of cells with the given lower-left corners
+    and sizes (a number, the side of square cells, or ``(n, 2)`` widths and heights: a cut cell's
+    lattice is its own, shrunk), cell by cell (x fastest): where :meth:`Particles.seed` puts particles."""
     sub = (np.arange(per_cell) + 0.5) / per_cell
     sub_xi = np.stack(np.meshgrid(sub, sub, indexing="xy"), -1).reshape(-1, 2)
-    return (np.asarray(origins)[:, None, :] + h * sub_xi[None]).reshape(-1, 2)
+    sizes = np.asarray(sizes, dtype=np.float64)
+    scale = sizes if sizes.ndim == 0 else sizes[:, None, :]
+    return (np.asarray(origins)[:, None, :] + scale * sub_xi[None]).reshape(-1, 2)
 
 
 _STANDARD = {"x": (2,), "volume": (), "mass": (), "velocity": (2,), "acceleration": (2,)}
 
 
-def lattice_points(grid: Grid, body, n: int, earlier: list, first_id: int) -> tuple[np.ndarray, np.ndarray]:
+def lattice_points(grid: Grid, body, n: int, earlier: list, first_id: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The ``n x n`` sub-cell centres of this rank's cells inside ``body`` and outside the
-    ``earlier`` bodies, with their ids ``first_id + cell * n**2 + sub`` (independent of the ranks)."""
+    ``earlier`` bodies, with their ids ``first_id + cell * n**2 + sub`` (independent of the ranks)
+    and the volumes they stand for (``h^2 / n^2``; in a cut cell its area over ``n^2``)."""
     cells = np.sort(grid.owned_cells)
-    x = sub_cell_centres(grid.cell_origin(cells), grid.h, n)
+    sizes = grid.cell_sizes(cells)
+    x = sub_cell_centres(grid.cell_origin(cells), sizes, n)
     keep = body.contains(x)
     for other in earlier:
         keep &= ~other.contains(x)
     ids = (first_id + cells[:, None] * n * n + np.arange(n * n)).ravel()[keep]
-    return x[keep], ids
+    volumes = np.repeat(sizes.prod(axis=1) / n**2, n * n)[keep]
+    return x[keep], ids, volumes
 
 
 class Particles:
@@ -212,7 +218,8 @@ class Particles:
 
     # -- seeding ------------------------------------------------------------------
     def seed(self, body, per_cell: int, density: float, **values) -> int:
-        """Add ``per_cell x per_cell`` particles per cell, at sub-cell centres inside ``body``.
+        """Add ``per_cell x per_cell`` particles per cell, at sub-cell centres inside ``body``
+        (in a cut cell of the tank's last column or row, the centres of its own sub-cells).
 
         Sub-cell centres already inside an earlier body are skipped (bodies are
         unions). Ids are ``offset + cell * per_cell**2 + sub``, independent of the
@@ -221,7 +228,8 @@ class Particles:
         Args:
             body: a :class:`Rectangle` or :class:`Polygon` inside the grid.
             per_cell: particles per cell and direction.
-            density: mass density; ``volume = h**2 / per_cell**2``, ``mass = density * volume``.
+            density: mass density; ``volume = h**2 / per_cell**2`` (a cut cell's area over
+                ``per_cell**2`` there), ``mass = density * volume``.
             **values: initial values of other fields (scalars or per-component sequences), or
                 functions of the positions ``(n, 2)`` returning them (an initial velocity field).
 
@@ -239,11 +247,11 @@ class Particles:
                 f"seed: body with bounds {lo.tolist()}..{up.tolist()} is not inside the grid "
                 f"{self.grid.lower.tolist()}..{self.grid.upper.tolist()}"
             )
-        x, ids = lattice_points(self.grid, body, int(per_cell), self._bodies, self._next_id)
+        x, ids, volumes = lattice_points(self.grid, body, int(per_cell), self._bodies, self._next_id)
         self._bodies.append(body)
         self._next_id += self.grid.num_cells * int(per_cell) ** 2
         values = {name: value(x) if callable(value) else value for name, value in values.items()}
-        return self.add_points(x, self.grid.h**2 / per_cell**2, density, ids=ids, **values)
+        return self.add_points(x, volumes, density, ids=ids, **values)
 
     def add_points(self, x, volume, density: float = 1.0, ids=None, **values) -> int:
         """Add particles at the given positions (on any rank; they move to their owners).

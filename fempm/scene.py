@@ -34,7 +34,7 @@ import numpy as np
 from fempm.errors import InputError
 from fempm.expressions import Expression
 from fempm.formsfile import forms_path, shipped_forms
-from fempm.grid import cell_counts, last_widths, square_cell_size
+from fempm.grid import cell_counts, cell_shares, last_widths, square_cell_size
 from fempm.options import FLUID_REGION_CELLS, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
 from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, finite, folder_name, forms_name,
@@ -133,9 +133,8 @@ class Obstacle(_Shaped):
         if self.shape == "cells":
             return np.array([i + nx * j for i, j in self.cells], dtype=np.int64)
         all_cells = np.arange(nx * ny)
-        ij = np.stack([all_cells % nx, all_cells // nx], -1)
-        sizes = np.where(ij == np.array([nx, ny]) - 1, domain.last, 1.0)  # a cut cell's centre is its part's
-        centres = np.asarray(domain.lower) + domain.h * (ij + 0.5 * sizes)
+        ij = np.stack([all_cells % nx, all_cells // nx], -1)  # a cut cell's centre is that of its part
+        centres = np.asarray(domain.lower) + domain.h * (ij + 0.5 * cell_shares(all_cells, (nx, ny), domain.last))
         return all_cells[self.geometry().contains(centres)]
 
 
@@ -756,11 +755,11 @@ def seeded_bodies(scene: Scene) -> list[tuple[int, float, float]]:
     cell), so a body's edges are rounded to it; where bodies overlap, the earlier one has
     the particles.
     """
-    h = scene.domain.h
     out = []
-    for body, _, _, inside in _seeding(scene):
-        n = int(inside.sum())
-        out.append((n, n * h * h / body.particles_per_cell, body.asked_area()))
+    for body, _, cells, inside in _seeding(scene):
+        n = math.isqrt(body.particles_per_cell)
+        area = _cell_sizes(scene.domain, cells[inside]).prod(axis=1).sum() / n**2  # the particles' volumes
+        out.append((int(inside.sum()), float(area), body.asked_area()))
     return out
 
 
@@ -780,7 +779,12 @@ def _seed_points(body: Body, d: Domain, lo, up) -> tuple[np.ndarray, np.ndarray]
     cells = (i + nx * j).ravel()
     origins = np.asarray(d.lower) + d.h * np.stack([cells % nx, cells // nx], -1)
     n = math.isqrt(body.particles_per_cell)
-    return sub_cell_centres(origins, d.h, n), np.repeat(cells, n * n)
+    return sub_cell_centres(origins, _cell_sizes(d, cells), n), np.repeat(cells, n * n)
+
+
+def _cell_sizes(d: Domain, cells: np.ndarray) -> np.ndarray:
+    """Width and height of structured cells, ``(n, 2)`` (as :meth:`fempm.grid.Grid.cell_sizes`)."""
+    return d.h * cell_shares(cells, d.shape, d.last)
 
 
 def _whole_steps(value: float, dt: float, name: str, at_least_one: bool = True):

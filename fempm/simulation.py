@@ -27,7 +27,7 @@ from fempm import diagnostics, linear, output, recording
 from fempm.bases import BASES
 from fempm.errors import InputError
 from fempm.formsfile import reporting_errors
-from fempm.grid import Grid
+from fempm.grid import Grid, cell_shares
 from fempm.implicit import ImplicitSolver
 from fempm.options import Controls, Physics, Scheme
 from fempm.particles import Particles, sub_cell_centres
@@ -104,10 +104,11 @@ def body_weights(scene: Scene) -> np.ndarray:
     (nx, ny), h = d.shape, d.h
     i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy")
     origins = np.column_stack([d.lower[0] + h * i.ravel(), d.lower[1] + h * j.ravel()])
+    sizes = h * cell_shares(np.arange(nx * ny), (nx, ny), d.last)
     weights = np.zeros(nx * ny)
     for body in scene.bodies:
         per_cell = math.isqrt(body.particles_per_cell)
-        inside = body.geometry().contains(sub_cell_centres(origins, h, per_cell))
+        inside = body.geometry().contains(sub_cell_centres(origins, sizes, per_cell))
         weights += inside.reshape(nx * ny, per_cell**2).sum(axis=1)
     return weights.reshape(ny, nx)
 

@@ -112,17 +112,22 @@ def smoothed_density(mass: np.ndarray, integrals: np.ndarray) -> np.ndarray:
 def density_normalisation(basis, particles) -> np.ndarray:
     """``int N_i dx`` of eq. (2) for every structured function, as the particles measure it.
 
-    When all particles come from one seeding lattice (equal volumes, ``n x n`` per cell) the
-    integral is taken by that lattice's rule, so that a region filled with particles at rest has
-    ``rho~ = rho`` exactly; otherwise by Gauss quadrature.
+    When all particles come from one seeding lattice (``n x n`` per cell, the volumes ``h^2 / n^2``,
+    or in a cut cell its area over ``n^2``) the integral is taken by that lattice's rule, so that
+    a region filled with particles at rest has ``rho~ = rho`` exactly; otherwise by Gauss quadrature.
     """
-    comm = basis.grid.comm
+    grid = basis.grid
+    comm = grid.comm
     volumes = particles["volume"]
-    v_min = comm.allreduce(float(volumes.min(initial=np.inf)), op=MPI.MIN)
     v_max = comm.allreduce(float(volumes.max(initial=0.0)), op=MPI.MAX)
-    side = basis.grid.h / np.sqrt(v_max) if v_max > 0 else 0.0
-    if v_max > 0 and v_min == v_max and abs(side - round(side)) < 1e-9:
-        return basis.lattice_integrals(int(round(side)))
+    side = grid.h / np.sqrt(v_max) if v_max > 0 else 0.0
+    if v_max > 0 and abs(side - round(side)) < 1e-9:
+        n = int(round(side))
+        shares = np.array([[1.0, 1.0], [grid.last[0], 1.0], [1.0, grid.last[1]], grid.last])
+        lattice = (grid.h * shares).prod(axis=1) / n**2  # as Particles.seed computes them
+        nearest = np.abs(volumes[:, None] - lattice).min(axis=1, initial=np.inf) if len(volumes) else volumes
+        if comm.allreduce(bool(np.all(nearest <= 1e-12 * v_max)), op=MPI.LAND):
+            return basis.lattice_integrals(n)
     return basis.integrals
 
 
