@@ -131,3 +131,56 @@ def test_dambreak_in_a_tank_not_a_whole_number_of_cells(comm):
     assert difference < 0.034  # measured 0.03271 (40 cells of 14.6 mm: 0.0198; 15 mm cells round the column to -2.2 %)
     assert abs(difference - references.front_difference(whole, interfoam)) < 1e-5  # measured 3.3e-7
     assert right <= 0.584  # measured 0.583948
+
+
+def _resting_water(comm, width=0.5, height=0.3, depth=0.2, steps=0):
+    grid = fempm.Grid(comm, (0.0, 0.0), (width, height), 0.04)  # 12.5 x 7.5 cells
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.0, 0.0), (width, depth)), per_cell=2, density=RHO)
+    solver = ImplicitSolver(fempm.BSpline2(grid), water)
+    for _ in range(steps):
+        solver.step()
+    return solver
+
+
+@pytest.mark.mpi
+def test_gauges_in_a_cut_tank(comm):
+    """Level gauges integrate up to the cut top face (a tank full to it reads its height), a pressure gauge
+    in the cut column reads rho g (H - y)."""
+    from fempm.gauges import LevelGauge, PressureGauge, Sampler
+
+    gauges = [LevelGauge(f"x{x}", x) for x in (0.0, 0.25, 0.49, 0.5)]
+    for depth in (0.2, 0.3):  # 0.3: to the top face, through the cut row
+        solver = _resting_water(comm, depth=depth)
+        levels = np.array(list(Sampler(gauges, solver.basis).sample(solver).values()))
+        assert np.abs(levels / depth - 1).max() < 1e-12  # measured 5.6e-16 for both
+    solver = _resting_water(comm, steps=20)
+    readings = Sampler([PressureGauge("cut", (0.495, 0.05))], solver.basis).sample(solver)
+    assert readings["cut"] == pytest.approx(RHO * G * 0.15, rel=0.004)  # measured -0.17 %
+
+
+@pytest.mark.mpi
+def test_grid_output_of_a_cut_tank_is_nan_past_the_faces(comm, tmp_path):
+    """The .vti image is evenly spaced: its points past the cut faces hold NaN, those inside the field; the VTX
+    stream (on the image's own mesh) is written."""
+    import pyvista as pv
+
+    from fempm.output import GridSeries
+
+    solver = _resting_water(comm, steps=2)
+    folder = Path(comm.bcast(str(tmp_path) if comm.rank == 0 else None, root=0))
+    series = GridSeries(folder, solver.basis)
+    series.write(solver.velocity, solver.pressure, solver.time)
+    series.write_vtx()
+    if comm.rank == 0:
+        image = pv.read(folder / series.entries[0][1])
+        assert image.dimensions == (27, 17, 1)  # 13 x 8 cells of the B-spline's Q2 nodes
+        x, p = np.asarray(image.points)[:, :2], np.asarray(image.point_data["pressure"])
+        v = np.asarray(image.point_data["velocity"])[:, :2]
+        beyond = (x[:, 0] > 0.5 + 1e-12) | (x[:, 1] > 0.3 + 1e-12)
+        assert beyond.sum() == 27 + 17 - 1  # the last column and row of points
+        assert np.all(np.isnan(p[beyond])) and np.all(np.isnan(v[beyond]))
+        assert np.all(np.isfinite(p[~beyond])) and np.all(np.isfinite(v[~beyond]))
+        at = np.flatnonzero(np.all(np.isclose(x, [0.5, 0.0]), axis=1))  # the bottom right corner, on the face
+        assert p[at][0] == pytest.approx(RHO * G * 0.2, rel=0.015)  # measured +1.1 % (after 2 steps)
+        assert (folder / "grid.bp").is_dir()
