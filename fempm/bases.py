@@ -15,8 +15,10 @@ face, ``last`` cells wide (:class:`fempm.grid.Grid`): the last knot span is then
 ``last h`` long (knots ``0, .., 0, 1, 2, .., n-1, n-1+last, .., n-1+last`` in cells),
 which is the clamped basis of the tank itself, with as many functions, interpolating
 at the face. Only the last cells' coefficients change (``xi`` in [0, last] there);
-``xi`` keeps its scale ``h``, so jets, tabulation and the structured numbering do not. The 2-D functions of a cell are the products, numbered
-``a + (k + 1) * b`` locally and ``(i + a) + nfx * (j + b)`` globally.
+``xi`` keeps its scale ``h``, so jets, tabulation and the structured numbering do not.
+
+The 2-D functions of a cell are the products, numbered ``a + (k + 1) * b`` locally
+and ``(i + a) + nfx * (j + b)`` globally.
 
 Derivatives are *jets*: ``d^(a+b) N / dxi^a deta^b`` in the cell's reference
 coordinates, i.e. ``h^(a+b)`` times the physical derivative. The jet order is

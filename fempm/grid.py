@@ -32,6 +32,11 @@ __all__ = ["Grid", "cell_counts", "cell_shares", "last_widths", "square_cell_siz
 _WALL_TOLERANCE = 1e-10
 
 
+#: The thinnest cut cell accepted, in cells. The wall's basis function lives in the cut cell alone,
+#: and the grid pressure on a cut face falls as the cut thins (measured in the README, "Scenes").
+MIN_CUT = 0.25
+
+
 def _covering(length: float, h: float, name: str) -> tuple[int, float]:
     """Cells of size ``h`` covering ``length`` from its start, and the last one's width in cells
     (1 when ``length`` is a whole number of cells, to a relative 1e-9)."""
@@ -41,7 +46,13 @@ def _covering(length: float, h: float, name: str) -> tuple[int, float]:
     if h > length:
         raise InputError(f"grid: the cell size h = {h:g} exceeds the {name} ({length:g})")
     n = math.ceil(length / h)
-    return int(n), (length - (n - 1) * h) / h
+    last = (length - (n - 1) * h) / h
+    if last < MIN_CUT:
+        raise InputError(f"grid: the {name} {length:g} in cells of h = {h:g} leaves a last cell {last:.3g} h thin "
+                         f"({last * h:.3g}), less than {MIN_CUT:g} h, too thin to hold the wall: take h = "
+                         f"{length / n:.6g} or {length / (n - 1):.6g} ({n} or {n - 1} whole cells), or a cut of at "
+                         f"least {MIN_CUT:g} h")
+    return int(n), last
 
 
 def _box(lower, upper) -> tuple[np.ndarray, np.ndarray]:
@@ -220,7 +231,8 @@ class Grid:
 
     @classmethod
     def from_cells(cls, comm: MPI.Comm, lower, upper, cells, weights=None) -> "Grid":
-        """A grid given by its number of cells per direction: ``h = width / nx``, ``ny`` the rows covering the height."""
+        """A grid given by its number of cells per direction: ``h = width / nx``, ``ny`` the rows covering
+        the height (:func:`square_cell_size`)."""
         return cls(comm, lower, upper, square_cell_size(lower, upper, cells), weights)
 
     def block(self, cells):

@@ -459,7 +459,8 @@ def _resolve_grid(d: Domain) -> tuple[int, int, float]:
     are the walls; where a side is not a whole number of cells, its last column or row is cut
     at the face (:class:`fempm.grid.Grid`). With ``cells = [nx, ny]``, ``h = width / nx`` and
     ``ny`` must be the number of rows covering the height (the top row cut where the height is
-    not a whole number of them); a cell larger than a side is refused.
+    not a whole number of them); a cell larger than a side, or a cut thinner than
+    :data:`fempm.grid.MIN_CUT` cells, is refused.
     """
     if (d.cells is None) == (d.cell_size is None):
         raise InputError("domain: give exactly one of cells = [nx, ny] and cell_size = h")
@@ -471,7 +472,10 @@ def _resolve_grid(d: Domain) -> tuple[int, int, float]:
     if d.cells:
         nx, ny = d.cells
         h = float(size[0] / nx)
-        rows = cell_counts(d.lower, d.upper, h)[1] if h <= size[1] else 0
+        try:
+            rows = cell_counts(d.lower, d.upper, h)[1] if h <= size[1] else 0
+        except InputError as e:  # a top row cut too thin
+            raise InputError(f"domain.cells = {list(d.cells)}: {str(e).removeprefix('grid: ')}") from None
         if rows != ny:
             cut = "" if abs(round(size[1] / h) * h - size[1]) <= 1e-9 * size[1] else ", the top one cut"
             covering = (f"the height {size[1]:g} m takes {rows} rows of them{cut}" if rows
@@ -488,13 +492,17 @@ def _resolve_grid(d: Domain) -> tuple[int, int, float]:
         k = int(np.argmax(h > size))
         raise InputError(f"domain.cell_size = {h:g}: larger than the tank's {('width', 'height')[k]} {size[k]:g} m; "
                          f"take at most {size.min():g} (m)")
-    nx, ny = cell_counts(d.lower, d.upper, h)
+    try:
+        nx, ny = cell_counts(d.lower, d.upper, h)
+    except InputError as e:  # a last column or row cut too thin
+        raise InputError(f"domain.cell_size = {h:g}: {str(e).removeprefix('grid: ')}") from None
     return nx, ny, h
 
 
 def describe_grid(nx: int, ny: int, h: float, last) -> str:
     """``"40 x 39 cells of h = 0.015 m, the last column cut to 0.014 m (0.933 h)"``: the grid and its cuts."""
-    cuts = [f"the {what} cut to {r * h:.4g} m ({r:.3g} h)" for what, r in zip(("last column", "top row"), last) if r < 1]
+    cuts = [f"the {what} cut to {r * h:.4g} m ({r:.3g} h)"
+            for what, r in zip(("last column", "top row"), last) if r < 1]
     return f"{nx} x {ny} cells of h = {h:g} m" + (", " + " and ".join(cuts) if cuts else "")
 
 

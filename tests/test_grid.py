@@ -61,7 +61,9 @@ def test_non_square_cells_are_refused(comm, lower, upper, cells, message):
 @pytest.mark.parametrize(
     "upper, h, message",
     [((1.0, 1.0), -0.1, "must be positive"), ((0.0, 1.0), 0.1, "must exceed lower"),
-     ((1.0, 0.5), 0.6, r"the cell size h = 0.6 exceeds the height \(0.5\)")],
+     ((1.0, 0.5), 0.6, r"the cell size h = 0.6 exceeds the height \(0.5\)"),
+     ((1.01, 1.0), 0.1, r"the width 1.01 in cells of h = 0.1 leaves a last cell 0.1 h thin \(0.01\), less than 0.25 h, "
+                        r"too thin to hold the wall: take h = 0.0918182 or 0.101 \(11 or 10 whole cells\)")],
 )
 def test_bad_grid_sizes_are_refused(comm, upper, h, message):
     with pytest.raises(InputError, match=message):

@@ -47,10 +47,15 @@ BAD_SCENES = [
     ("cells not square", _edit("cells = [40, 40]", "cells = [40, 20]"), [],
      r"domain.cells = \[40, 20\]: the cells are square, 0.584 m / 40 = 0.0146 m, and the height 0.584 m takes 40 "
      r"rows of them, not 20: take cells = \[40, 40\], or cell_size = 0.0292 for 20 whole rows"),
-    ("cells not covering a cut height", _edit("upper = [0.584, 0.584]", "upper = [0.584, 0.5]")
+    ("cells not covering a cut height", _edit("upper = [0.584, 0.584]", "upper = [0.584, 0.51]")
      .replace("cells = [40, 40]", "cells = [40, 30]"), [],
-     r"domain.cells = \[40, 30\]: the cells are square, 0.584 m / 40 = 0.0146 m, and the height 0.5 m takes 35 "
-     r"rows of them, the top one cut, not 30: take cells = \[40, 35\], or cell_size = 0.0166667 for 30 whole rows"),
+     r"domain.cells = \[40, 30\]: the cells are square, 0.584 m / 40 = 0.0146 m, and the height 0.51 m takes 35 "
+     r"rows of them, the top one cut, not 30: take cells = \[40, 35\], or cell_size = 0.017 for 30 whole rows"),
+    ("a cut too thin", _edit("cells = [40, 40]", "cell_size = 0.01456"), [],
+     r"domain.cell_size = 0.01456: the width 0.584 in cells of h = 0.01456 leaves a last cell 0.11 h thin \(0.0016\), "
+     r"less than 0.25 h, too thin to hold the wall: take h = 0.0142439 or 0.0146 \(41 or 40 whole cells\)"),
+    ("a top row cut too thin", _edit("upper = [0.584, 0.584]", "upper = [0.584, 0.586]"), [],
+     r"domain.cells = \[40, 40\]: the height 0.586 in cells of h = 0.0146 leaves a last cell 0.137 h thin"),
     ("cell size larger than the tank", _edit("cells = [40, 40]", "cell_size = 0.6"), [],
      r"domain.cell_size = 0.6: larger than the tank's width 0.584 m; take at most 0.584 \(m\)"),
     ("both cells and cell size", _edit("cells = [40, 40]", "cells = [40, 40]\ncell_size = 0.0146"), [],
@@ -378,9 +383,9 @@ def test_a_tank_not_a_whole_number_of_cells_is_cut_and_check_says_so(capsys, tmp
     assert ("# 39 x 39 cells of h = 0.015 m, the last column cut to 0.014 m (0.933 h) and the top row cut to "
             "0.014 m (0.933 h), 0 blocked by obstacles") in out
     # cells = [nx, ny] on a tank whose height is not a whole number of them: the top row cut
-    text = _edit("upper = [0.584, 0.584]", "upper = [0.584, 0.5]").replace("cells = [40, 40]", "cells = [40, 35]")
+    text = _edit("upper = [0.584, 0.584]", "upper = [0.584, 0.51]").replace("cells = [40, 40]", "cells = [40, 35]")
     domain = scene_from_text(text, "tank.toml").domain
-    assert domain.h == pytest.approx(0.0146) and domain.last == pytest.approx((1.0, 0.5 / 0.0146 - 34), rel=1e-9)
+    assert domain.h == pytest.approx(0.0146) and domain.last == pytest.approx((1.0, 0.51 / 0.0146 - 34), rel=1e-9)
 
 
 def test_an_adaptive_step_lifts_the_whole_step_rule():
