@@ -495,10 +495,13 @@ class ParticleForm:
                 self._kernels[_REGULAR], target.values, lay.indptr, lay.stencil, particles.x,
                 particles.cell, weight, phi, lfun, coeffs, consts, self._perm, h,
             )
+        target.mark_written(lfun)
         if _LUMPED in self._kernels and self._lumped_affine:
+            sums = self._function_sums(phi, lfun, weight, coeffs)
+            target.mark_written(np.flatnonzero(sums[: self.space.numbering.num_owned, 0] > 0.0))  # other ranks' too
             assembly.assemble_matrix_nodal_affine(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
-                self._function_sums(phi, lfun, weight, coeffs), self.space.numbering.num_owned,
+                sums, self.space.numbering.num_owned,
                 self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h, self._packing.nodal_slots(),
             )
         elif _LUMPED in self._kernels:
