@@ -14,8 +14,7 @@ named here:
   the unknowns, so the factorisation is several times cheaper than LU of the whole system,
   and as the velocity block is nearly diagonal (the mass over ``beta dt^2``) the iteration
   reaches ``rtol = 1e-13`` in a few steps, the same solution as LU to round-off. The LU of
-  S is PETSc's own in the natural order (the free pressure dofs row by row of the grid: already
-  banded, less fill than reverse Cuthill-McKee and no ordering to compute) for small systems and MUMPS above
+  S is PETSc's own with a reverse Cuthill-McKee ordering for small systems and MUMPS above
   :data:`SMALL_SYSTEM` free dofs (chosen at every solve unless the options name a package,
   :func:`schur_factor_options`); should the iteration fail, the system is solved again
   by MUMPS LU (:data:`DIRECT`);
@@ -77,10 +76,10 @@ _SCHUR_FACTOR_NAMES = ("fieldsplit_p_pc_factor_mat_solver_type", "fieldsplit_p_p
 
 def schur_factor_options(free_dofs: int) -> dict:
     """The package and ordering of the Schur complement's LU for a system of ``free_dofs``: PETSc's
-    in the natural (grid) order, or MUMPS with approximate minimum degree (QAMD, ``ICNTL(7) = 6``;
+    with reverse Cuthill-McKee, or MUMPS with approximate minimum degree (QAMD, ``ICNTL(7) = 6``;
     MUMPS's own choice, METIS on large systems, costs more in the analysis than it saves)."""
     if free_dofs <= SMALL_SYSTEM:
-        return {"fieldsplit_p_pc_factor_mat_solver_type": "petsc", "fieldsplit_p_pc_factor_mat_ordering_type": "natural"}
+        return {"fieldsplit_p_pc_factor_mat_solver_type": "petsc", "fieldsplit_p_pc_factor_mat_ordering_type": "rcm"}
     return {"fieldsplit_p_pc_factor_mat_solver_type": "mumps", "fieldsplit_p_mat_mumps_icntl_7": 6}
 
 
