@@ -189,16 +189,7 @@ class LinearSolver:
         self.ksp.setOperators(A_free)
         if not same and self.fields and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT:
             self.ksp.getPC().setFieldSplitIS(*self._splits(free))
-        chosen = schur_factor_options(A_free.getSize()[0]) if self.exact_schur else {}
-        opts = PETSc.Options()
-        for name, value in chosen.items():  # read while the split sets up, then removed
-            opts[self.prefix + name] = value
-        try:
-            self.ksp.solve(b_free, x_free)
-        finally:
-            for name in chosen:
-                opts.delValue(self.prefix + name)
-        reason = self.ksp.getConvergedReason()
+        reason = self._ksp_solve(b_free, x_free, A_free.getSize()[0])
         if reason < 0 and self.exact_schur:
             reason = self._solve_by_lu(A_free, b_free, x_free)
         b.restoreSubVector(index_set, b_free)
@@ -213,6 +204,20 @@ class LinearSolver:
         x_free.copy(x_sub)
         x.restoreSubVector(index_set, x_sub)
         return x
+
+    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, size: int) -> int:
+        """The KSP's solve, with the Schur complement's LU package chosen by ``size`` (exact Schur
+        solve); its converged reason."""
+        chosen = schur_factor_options(size) if self.exact_schur else {}
+        opts = PETSc.Options()
+        for name, value in chosen.items():  # read while the split sets up, then removed
+            opts[self.prefix + name] = value
+        try:
+            self.ksp.solve(b, x)
+        finally:
+            for name in chosen:
+                opts.delValue(self.prefix + name)
+        return self.ksp.getConvergedReason()
 
     def _solve_blocks(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None) -> PETSc.Vec:
         """:meth:`solve` with the field split's blocks and Schur complement cut from the grid matrix
@@ -236,16 +241,7 @@ class LinearSolver:
             pc.setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, blocks.schur)
         b_free = PETSc.Vec().createWithArray(b.getArray(readonly=True)[blocks.order], comm=PETSc.COMM_SELF)
         x_free = b_free.duplicate()
-        chosen = schur_factor_options(len(free)) if self.exact_schur else {}
-        opts = PETSc.Options()
-        for name, value in chosen.items():  # read while the split sets up, then removed
-            opts[self.prefix + name] = value
-        try:
-            self.ksp.solve(b_free, x_free)
-        finally:
-            for name in chosen:
-                opts.delValue(self.prefix + name)
-        reason = self.ksp.getConvergedReason()
+        reason = self._ksp_solve(b_free, x_free, len(free))
         values = np.zeros(b.getLocalSize())
         if reason < 0 and self.exact_schur:  # LU of the free block in the grid's order, as without blocks
             index_set = PETSc.IS().createGeneral(free, comm=self.comm)
