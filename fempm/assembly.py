@@ -31,6 +31,7 @@ __all__ = [
     "assemble_vector",
     "assemble_vector_lumped",
     "jets_at_particles",
+    "pack_jets",
 ]
 
 
@@ -45,38 +46,60 @@ def _jet_cell(x, h, coords):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _add_particle(K, perm, w, phi_p, T, pair, Ae):
+def _add_particle(K, comp, jet, w, phi_p, T, slot, pairs, Ae):
     """``Ae += w * phi_p^T K phi_p``, visiting only the non-zero entries of ``K``.
 
-    ``T[C, a, D, :] = sum_b K[(C, a), (D, b)] phi_p[b, :]`` is formed first for the
-    non-zero entries, then ``Ae[C, :, D, :] += phi_p[a, :] (x) T[C, a, D, :]`` for the
-    (C, a, D) that had any.
+    ``comp[i], jet[i]``: component and jet of kernel dof ``i``. For each (C, a, D) that has a
+    non-zero entry, ``T[q, :] = sum_b K[(C, a), (D, b)] phi_p[b, :]`` (``q = slot[(C, a, D)]``,
+    in the order of first appearance, listed in ``pairs``), then
+    ``Ae[C, :, D, :] += phi_p[a, :] (x) T[q, :]``. ``slot`` is -1 on entry and on return.
     """
-    bs, nq = perm.shape
+    nk = comp.shape[0]
+    nq = phi_p.shape[0]
     nl = phi_p.shape[1]
-    nk = bs * nq
-    pair[:] = False
+    bs = Ae.shape[0]
+    count = 0
+    for i in range(nk):
+        C, a = comp[i], jet[i]
+        for j in range(nk):
+            k = K[i * nk + j]
+            if k != 0.0:
+                D, b = comp[j], jet[j]
+                pid = (C * nq + a) * bs + D
+                q = slot[pid]
+                if q < 0:
+                    q = count
+                    slot[pid] = q
+                    pairs[q] = pid
+                    count += 1
+                    for m in range(nl):
+                        T[q, m] = 0.0
+                k *= w
+                for m in range(nl):
+                    T[q, m] += k * phi_p[b, m]
+    for q in range(count):
+        pid = pairs[q]
+        slot[pid] = -1
+        D = pid % bs
+        a = (pid // bs) % nq
+        C = pid // (bs * nq)
+        for l in range(nl):
+            f = phi_p[a, l]
+            for m in range(nl):
+                Ae[C, l, D, m] += f * T[q, m]
+
+
+@numba.njit(cache=True)
+def _dof_jets(perm):
+    """Component and jet of every kernel dof (the inverse of ``perm[C, a]``)."""
+    bs, nq = perm.shape
+    comp = np.empty(bs * nq, dtype=np.int64)
+    jet = np.empty(bs * nq, dtype=np.int64)
     for C in range(bs):
         for a in range(nq):
-            row = perm[C, a] * nk
-            for D in range(bs):
-                for b in range(nq):
-                    k = K[row + perm[D, b]]
-                    if k != 0.0:
-                        if not pair[C, a, D]:
-                            pair[C, a, D] = True
-                            T[C, a, D, :] = 0.0
-                        k *= w
-                        for m in range(nl):
-                            T[C, a, D, m] += k * phi_p[b, m]
-    for C in range(bs):
-        for a in range(nq):
-            for D in range(bs):
-                if pair[C, a, D]:
-                    for l in range(nl):
-                        f = phi_p[a, l]
-                        for m in range(nl):
-                            Ae[C, l, D, m] += f * T[C, a, D, m]
+            comp[perm[C, a]] = C
+            jet[perm[C, a]] = a
+    return comp, jet
 
 
 @numba.njit(cache=True)
@@ -105,8 +128,10 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     nk = bs * nq
     k1 = int(np.sqrt(nl) + 0.5)
     K = np.zeros(nk * nk)
-    T = np.zeros((bs, nq, bs, nl))
-    pair = np.zeros((bs, nq, bs), dtype=np.bool_)
+    comp, jet = _dof_jets(perm)
+    T = np.zeros((bs * nq * bs, nl))
+    slot = np.full(bs * nq * bs, -1, dtype=np.int64)
+    pairs = np.empty(bs * nq * bs, dtype=np.int64)
     Ae = np.zeros((bs, nl, bs, nl))
     coords = np.zeros(12)
     cur = -1
@@ -122,7 +147,7 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
         K[:] = 0.0
         _jet_cell(x[p], h, coords)
         kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        _add_particle(K, perm, weight[p], phi[p], T, pair, Ae)
+        _add_particle(K, comp, jet, weight[p], phi[p], T, slot, pairs, Ae)
     return 0
 
 
@@ -291,6 +316,26 @@ def assemble_scalar(kernel, x, weight, coeffs, consts, h):
         kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
         total += weight[p] * K[0]
     return total
+
+
+@numba.njit(cache=True)
+def pack_jets(phi, lfun, values, index, offset, out):
+    """``out[p, offset + index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: the jets of a
+    grid function at the particles, written where a form's kernel reads them."""
+    n, nq, nl = phi.shape
+    bs = values.shape[1]
+    local = np.empty((bs, nl))
+    for p in range(n):
+        for l in range(nl):
+            f = lfun[p, l]
+            for c in range(bs):
+                local[c, l] = values[f, c]
+        for a in range(nq):
+            for c in range(bs):
+                s = 0.0
+                for l in range(nl):
+                    s += phi[p, a, l] * local[c, l]
+                out[p, offset + index[c, a]] = s
 
 
 @numba.njit(cache=True)

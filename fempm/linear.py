@@ -45,6 +45,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from fempm.errors import InputError
+from fempm.schur import FreeBlocks
 
 __all__ = ["DIRECT", "EXACT", "ITERATIVE", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
            "direct_options", "schur_factor_options", "set_options", "writing_option"]
@@ -142,6 +143,12 @@ class LinearSolver:
                             and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
                             and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
+        # one rank, a selfp Schur split of two fields: the blocks and S cut from a grid matrix (fempm.schur)
+        self.cuts_blocks = (comm.size == 1 and len(self.fields) == 2
+                            and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
+                            and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
+                            and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
+                            and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
         self._fallback = None
         self._previous = None  # (matrix, free dofs, their index set, the block) of the last solve
         self.reuses = 0  # solves that kept the last one's pattern
@@ -162,6 +169,8 @@ class LinearSolver:
             SolveFailed: the solver reports failure or the solution is not finite.
         """
         free = np.asarray(free, dtype=PETSc.IntType)
+        if self.cuts_blocks and A.getAttr("fempm_grid_matrix") is not None:
+            return self._solve_blocks(A, b, free, x)
         previous = self._previous
         same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
         if self.comm.size > 1:
@@ -180,16 +189,7 @@ class LinearSolver:
         self.ksp.setOperators(A_free)
         if not same and self.fields and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT:
             self.ksp.getPC().setFieldSplitIS(*self._splits(free))
-        chosen = schur_factor_options(A_free.getSize()[0]) if self.exact_schur else {}
-        opts = PETSc.Options()
-        for name, value in chosen.items():  # read while the split sets up, then removed
-            opts[self.prefix + name] = value
-        try:
-            self.ksp.solve(b_free, x_free)
-        finally:
-            for name in chosen:
-                opts.delValue(self.prefix + name)
-        reason = self.ksp.getConvergedReason()
+        reason = self._ksp_solve(b_free, x_free, A_free.getSize()[0])
         if reason < 0 and self.exact_schur:
             reason = self._solve_by_lu(A_free, b_free, x_free)
         b.restoreSubVector(index_set, b_free)
@@ -203,6 +203,63 @@ class LinearSolver:
         x_sub = x.getSubVector(index_set)
         x_free.copy(x_sub)
         x.restoreSubVector(index_set, x_sub)
+        return x
+
+    def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, size: int) -> int:
+        """The KSP's solve, with the Schur complement's LU package chosen by ``size`` (exact Schur
+        solve); its converged reason."""
+        chosen = schur_factor_options(size) if self.exact_schur else {}
+        opts = PETSc.Options()
+        for name, value in chosen.items():  # read while the split sets up, then removed
+            opts[self.prefix + name] = value
+        try:
+            self.ksp.solve(b, x)
+        finally:
+            for name in chosen:
+                opts.delValue(self.prefix + name)
+        return self.ksp.getConvergedReason()
+
+    def _solve_blocks(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None) -> PETSc.Vec:
+        """:meth:`solve` with the field split's blocks and Schur complement cut from the grid matrix
+        (:class:`fempm.schur.FreeBlocks`; the same pattern as the last solve: only the values)."""
+        previous = self._previous
+        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
+        if same:
+            blocks = previous[3]
+            blocks.refill()
+            self.reuses += 1
+        else:
+            self.ksp.reset()
+            if previous is not None and isinstance(previous[3], FreeBlocks):
+                previous[3].destroy()
+            blocks = FreeBlocks(A.getAttr("fempm_grid_matrix"), free, self.fields)
+            self._previous = (A, free.copy(), None, blocks)
+        self.ksp.setOperators(blocks.nest)
+        if not same:
+            pc = self.ksp.getPC()
+            pc.setFieldSplitIS(*blocks.index_sets)
+            pc.setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, blocks.schur)
+        b_free = PETSc.Vec().createWithArray(b.getArray(readonly=True)[blocks.order], comm=PETSc.COMM_SELF)
+        x_free = b_free.duplicate()
+        reason = self._ksp_solve(b_free, x_free, len(free))
+        values = np.zeros(b.getLocalSize())
+        if reason < 0 and self.exact_schur:  # LU of the free block in the grid's order, as without blocks
+            index_set = PETSc.IS().createGeneral(free, comm=self.comm)
+            A_free = A.createSubMatrix(index_set, index_set)
+            b_sub = b.getSubVector(index_set)
+            x_sub = A_free.createVecRight()
+            reason = self._solve_by_lu(A_free, b_sub, x_sub)
+            b.restoreSubVector(index_set, b_sub)
+            values[free] = x_sub.getArray(readonly=True)
+        else:
+            values[blocks.order] = x_free.getArray(readonly=True)
+        if reason < 0:
+            raise SolveFailed(f"linear solve failed: {_REASONS.get(reason, reason)}")
+        if not np.all(np.isfinite(values)):
+            raise SolveFailed("linear solve produced non-finite values (singular matrix?)")
+        if x is None:
+            x = b.duplicate()
+        x.setArray(values)
         return x
 
     def _solve_by_lu(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> int:

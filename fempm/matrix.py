@@ -22,6 +22,7 @@ from __future__ import annotations
 import ctypes
 import weakref
 
+import numba
 import numpy as np
 from petsc4py import PETSc
 
@@ -124,12 +125,44 @@ class MatrixLayout:
         return np.repeat(start - offsets, length) + np.arange(length.sum())
 
 
+@numba.njit(cache=True)
+def _mark(functions, written):
+    for f in functions.ravel():
+        written[f] = True
+
+
+@numba.njit(cache=True)
+def _zero_rows(written, indptr, bs, values):
+    """Zero the rows of the written functions and forget them."""
+    for f in range(written.shape[0]):
+        if written[f]:
+            values[indptr[bs * f]: indptr[bs * (f + 1)]] = 0.0
+            written[f] = False
+
+
+@numba.njit(cache=True)
+def _multiply_rows(written, indptr, columns, values, bs, x, y):
+    """``y = A x`` where only the rows of written functions hold values (``y`` zero elsewhere)."""
+    y[:] = 0.0
+    for f in range(written.shape[0]):
+        if written[f]:
+            for r in range(bs * f, bs * (f + 1)):
+                s = 0.0
+                for e in range(indptr[r], indptr[r + 1]):
+                    s += values[e] * x[columns[e]]
+                y[r] = s
+
+
 class GridMatrix:
     """A PETSc matrix of a space with the full-grid sparsity and direct CSR access.
 
     ``values`` holds the local rows (owned then ghost); after filling it call
     :meth:`finalize` to add the ghost rows into their owners and update PETSc.
     ``mat`` is the PETSc matrix (AIJ, block size ``bs``, global numbering).
+
+    A writer that names the functions whose rows it filled (:meth:`mark_written`) lets
+    :meth:`zero` clear only those rows and :meth:`multiply` skip the others, which are zero: a
+    large grid holding a little water then costs per step what the water's rows do.
     """
 
     def __init__(self, space: Space, region: np.ndarray | None = None):
@@ -143,10 +176,32 @@ class GridMatrix:
         self.mat = PETSc.Mat().createAIJWithArrays(((n, big_n), (n, big_n)), csr, bsize=space.bs, comm=space.comm)
         self.mat.setAttr("fempm_grid_matrix", self)
         self._shared = space.comm.size == 1  # a SeqAIJ made from arrays shares self.values
+        self._written = None  # per local function: its rows may hold values (None: not known)
 
     def zero(self):
-        """Set every stored value to zero (the sparsity stays)."""
-        self.values[:] = 0.0
+        """Set every stored value to zero (the sparsity stays): the rows of the functions marked
+        written since the last zero (and those ghost rows of other ranks add into), or all."""
+        if self._written is None:
+            self.values[:] = 0.0
+            self._written = np.zeros(len(self.space.numbering.local_functions), dtype=np.bool_)
+        else:
+            _zero_rows(self._written, self.layout.indptr, self.space.bs, self.values)
+            self.values[self.layout.recv_entries] = 0.0
+
+    def mark_written(self, functions: np.ndarray):
+        """Record that the rows of these local functions (any shape) were filled since :meth:`zero`."""
+        if self._written is not None:
+            _mark(np.ascontiguousarray(functions), self._written)
+
+    def multiply(self, x: np.ndarray) -> np.ndarray | None:
+        """``A x`` for the owned rows on one rank when the written rows are known (``x`` by global
+        dof); None otherwise (use PETSc)."""
+        if not self._shared or self._written is None:
+            return None
+        y = np.empty(self.layout.num_owned_rows)
+        lay = self.layout
+        _multiply_rows(self._written, lay.indptr, lay.columns, self.values, self.space.bs, x, y)
+        return y
 
     def finalize(self) -> PETSc.Mat:
         """Add ghost rows into their owners and pass the owned rows to PETSc."""

@@ -326,49 +326,52 @@ def _constant_array(constants: Mapping, names: list[str]) -> np.ndarray:
 # --------------------------------------------------------------------------------------
 class _Coefficients:
     """A compiled form's coefficients in its kernel's order, packed per particle: particle fields
-    as they are, grid functions as their jets at the particle (values and derivatives)."""
+    as they are, grid functions as their jets at the particle (values and derivatives).
+
+    The layout (where each coefficient's entries go) is fixed by the form and worked out once."""
 
     def __init__(self, coefficients, used, grid_functions, jet_cell, shapes):
         self.coefficients, self.used, self.grid_functions = coefficients, used, grid_functions
         self.jet_cell, self.shapes = jet_cell, shapes
+        self._parts = []  # (kind, name, offset, size, index: [C, a] -> element dof of a grid function)
+        offset = 0
+        for coefficient in coefficients:
+            kind, name = used[coefficient]
+            if kind == "particle":
+                index, size = None, int(np.prod(shapes[name], dtype=int))
+            else:
+                index = np.ascontiguousarray(jet_cell.dof_index(grid_functions[name].space.fields))
+                size = index.size
+            self._parts.append((kind, name, offset, size, index))
+            offset += size
+        self.width = offset
 
     def pack(self, particles, phi, lfun) -> np.ndarray:
         """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
         n = len(particles)
-        blocks = []
-        for coefficient in self.coefficients:
-            kind, name = self.used[coefficient]
-            if kind == "particle":
-                blocks.append(particles[name].reshape(n, int(np.prod(particles[name].shape[1:], dtype=int))))
-            else:
-                gf = self.grid_functions[name]
-                jets = np.empty((n, phi.shape[1], gf.space.bs))
-                assembly.jets_at_particles(phi, lfun, gf.values, jets)
-                index = self.jet_cell.dof_index(gf.space.fields)  # [C, a] -> element dof
-                block = np.empty((n, index.size))
-                block[:, index.T.ravel()] = jets.reshape(n, index.size)
-                blocks.append(block)
-        if not blocks:
+        if not self._parts:
             return np.zeros((n, 1))
-        return np.ascontiguousarray(np.concatenate(blocks, axis=1))
+        out = np.empty((n, self.width))
+        for kind, name, offset, size, index in self._parts:
+            if kind == "particle":
+                out[:, offset: offset + size] = particles[name].reshape(n, size)
+            else:
+                assembly.pack_jets(phi, lfun, self.grid_functions[name].values, index, offset, out)
+        return out
 
     def nodal_slots(self):
         """For lumped integrals: the grid functions' coefficients side by side, and where
         their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
         columns, slot_pos, slot_col, zero_pos = [], [], [], []
-        offset = column = 0
-        for coefficient in self.coefficients:
-            kind, name = self.used[coefficient]
+        column = 0
+        for kind, name, offset, _, index in self._parts:
             if kind == "particle":
-                offset += int(np.prod(self.shapes[name], dtype=int))
                 continue
             gf = self.grid_functions[name]
-            index = self.jet_cell.dof_index(gf.space.fields)  # [C, a]
             slot_pos.extend(offset + index[:, 0])
             slot_col.extend(column + np.arange(gf.space.bs))
             zero_pos.extend(offset + index[:, 1:].ravel())
             columns.append(gf.values)
-            offset += index.size
             column += gf.space.bs
         G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
         as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
@@ -376,15 +379,8 @@ class _Coefficients:
 
     def particle_slots(self) -> np.ndarray:
         """Positions of the particle fields in the packed coefficients."""
-        slots, offset = [], 0
-        for coefficient in self.coefficients:
-            kind, name = self.used[coefficient]
-            size = (int(np.prod(self.shapes[name], dtype=int)) if kind == "particle"
-                    else self.jet_cell.dof_index(self.grid_functions[name].space.fields).size)
-            if kind == "particle":
-                slots.extend(range(offset, offset + size))
-            offset += size
-        return np.asarray(slots, dtype=np.int64)
+        slots = [range(offset, offset + size) for kind, _, offset, size, _ in self._parts if kind == "particle"]
+        return np.asarray([i for r in slots for i in r], dtype=np.int64)
 
 
 class ParticleForm:
@@ -499,10 +495,13 @@ class ParticleForm:
                 self._kernels[_REGULAR], target.values, lay.indptr, lay.stencil, particles.x,
                 particles.cell, weight, phi, lfun, coeffs, consts, self._perm, h,
             )
+        target.mark_written(lfun)
         if _LUMPED in self._kernels and self._lumped_affine:
+            sums = self._function_sums(phi, lfun, weight, coeffs)
+            target.mark_written(np.flatnonzero(sums[: self.space.numbering.num_owned, 0] > 0.0))  # other ranks' too
             assembly.assemble_matrix_nodal_affine(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
-                self._function_sums(phi, lfun, weight, coeffs), self.space.numbering.num_owned,
+                sums, self.space.numbering.num_owned,
                 self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h, self._packing.nodal_slots(),
             )
         elif _LUMPED in self._kernels:

@@ -154,9 +154,14 @@ class GridSystem:
         n = self.space.num_owned_dofs
         if not forms.linear:
             return forms.residual.assemble_vector(particles, self._R).array[:n].copy()
-        product = self._delta_of.createVecLeft()  # the solve scaled R(U_0) by -1; delta = U - U_0
-        self._delta_of.mult(self._delta, product)
-        return product.getArray(readonly=True)[:n] - self._R.array[:n]
+        # the solve scaled R(U_0) by -1; delta = U - U_0
+        gm = self._delta_of.getAttr("fempm_grid_matrix")
+        product = gm.multiply(self._delta.getArray(readonly=True)) if gm is not None else None
+        if product is None:
+            product = self._delta_of.createVecLeft()
+            self._delta_of.mult(self._delta, product)
+            product = product.getArray(readonly=True)
+        return product[:n] - self._R.array[:n]
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]

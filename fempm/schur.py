@@ -1,0 +1,230 @@
+"""The free-dof system of a grid matrix as velocity and pressure blocks, cut from its CSR storage.
+
+On one rank the step's exact solve (:mod:`fempm.linear`) is a Schur-complement field split of the
+free dofs. PETSc would extract the free-dof block from the matrix, then the four blocks of the
+split from that, and form the ``selfp`` complement ``S = A11 - A10 diag(A00)^-1 A01`` by a
+sparse product, all again whenever the free dofs change (nearly every step). Here the four blocks
+``A00, A01, A10, A11`` (velocity dofs first, then pressure, each in increasing order) and ``S``
+are cut straight from the grid matrix's CSR arrays (:mod:`fempm.matrix`) in one pass each:
+the pattern (with where every entry comes from) when the free dofs change, only the values
+otherwise. The blocks form a PETSc ``MATNEST`` whose field split takes them as they are.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from petsc4py import PETSc
+
+__all__ = ["FreeBlocks"]
+
+
+@numba.njit(cache=True)
+def _numbering(free, field_of_component, num_dofs):
+    """Field of every dof (-1: not free), its position within its field's block, and the dofs of
+    each field (increasing)."""
+    bs = field_of_component.shape[0]
+    field = np.full(num_dofs, -1, dtype=np.int8)
+    position = np.empty(num_dofs, dtype=np.int32)
+    counts = np.zeros(2, dtype=np.int64)
+    for g in free:
+        f = field_of_component[g % bs]
+        field[g] = f
+        position[g] = counts[f]
+        counts[f] += 1
+    rows0 = np.empty(counts[0], dtype=np.int64)
+    rows1 = np.empty(counts[1], dtype=np.int64)
+    for g in free:
+        if field[g] == 0:
+            rows0[position[g]] = g
+        else:
+            rows1[position[g]] = g
+    return field, position, rows0, rows1
+
+
+@numba.njit(cache=True)
+def _row_blocks(indptr, columns, rows, field, position):
+    """CSR patterns of the two blocks of ``rows`` (free columns of field 0, of field 1): row
+    pointers, columns (block numbering, increasing as the grid matrix's are) and every entry's
+    place in the grid matrix's values."""
+    n = rows.shape[0]
+    pointer0 = np.zeros(n + 1, dtype=np.int32)
+    pointer1 = np.zeros(n + 1, dtype=np.int32)
+    for i in range(n):
+        r = rows[i]
+        c0 = c1 = 0
+        for e in range(indptr[r], indptr[r + 1]):
+            f = field[columns[e]]
+            if f == 0:
+                c0 += 1
+            elif f == 1:
+                c1 += 1
+        pointer0[i + 1] = pointer0[i] + c0
+        pointer1[i + 1] = pointer1[i] + c1
+    cols0 = np.empty(pointer0[n], dtype=np.int32)
+    cols1 = np.empty(pointer1[n], dtype=np.int32)
+    source0 = np.empty(pointer0[n], dtype=np.int64)
+    source1 = np.empty(pointer1[n], dtype=np.int64)
+    for i in range(n):
+        r = rows[i]
+        k0, k1 = pointer0[i], pointer1[i]
+        for e in range(indptr[r], indptr[r + 1]):
+            c = columns[e]
+            f = field[c]
+            if f == 0:
+                cols0[k0] = position[c]
+                source0[k0] = e
+                k0 += 1
+            elif f == 1:
+                cols1[k1] = position[c]
+                source1[k1] = e
+                k1 += 1
+    return (pointer0, cols0, source0), (pointer1, cols1, source1)
+
+
+@numba.njit(cache=True)
+def _diagonal_positions(pointer, cols):
+    """Position of the diagonal entry of every row of a square block (-1: none stored)."""
+    n = pointer.shape[0] - 1
+    out = np.full(n, -1, dtype=np.int64)
+    for i in range(n):
+        for k in range(pointer[i], pointer[i + 1]):
+            if cols[k] == i:
+                out[i] = k
+    return out
+
+
+@numba.njit(cache=True)
+def _schur(p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal):
+    """Pattern and values of ``A11 - A10 diag(A00)^-1 A01`` (``diagonal`` = diag(A00)), columns
+    increasing within each row: one pass, the row's columns found by a scan of the range it touched."""
+    n = p11.shape[0] - 1
+    mark = np.full(n, -1, dtype=np.int64)
+    acc = np.zeros(n)
+    pointer = np.zeros(n + 1, dtype=np.int32)
+    capacity = max(16, 4 * p11[n])
+    cols = np.empty(capacity, dtype=np.int32)
+    values = np.empty(capacity)
+    for i in range(n):
+        lo, hi = n, -1
+        for k in range(p11[i], p11[i + 1]):
+            j = c11[k]
+            if mark[j] != i:
+                mark[j] = i
+                lo, hi = min(lo, j), max(hi, j)
+            acc[j] += v11[k]
+        for k in range(p10[i], p10[i + 1]):
+            m = c10[k]
+            s = v10[k] / diagonal[m]
+            for q in range(p01[m], p01[m + 1]):
+                j = c01[q]
+                if mark[j] != i:
+                    mark[j] = i
+                    lo, hi = min(lo, j), max(hi, j)
+                acc[j] -= s * v01[q]
+        start = pointer[i]
+        if start + (hi - lo + 1) > capacity:
+            capacity = max(2 * capacity, start + hi - lo + 1)
+            grown_cols, grown_values = np.empty(capacity, dtype=np.int32), np.empty(capacity)
+            grown_cols[:start], grown_values[:start] = cols[:start], values[:start]
+            cols, values = grown_cols, grown_values
+        k = start
+        for j in range(lo, hi + 1):
+            if mark[j] == i:
+                cols[k] = j
+                values[k] = acc[j]
+                acc[j] = 0.0
+                k += 1
+        pointer[i + 1] = k
+    return pointer, cols[: pointer[n]].copy(), values[: pointer[n]].copy()
+
+
+@numba.njit(cache=True)
+def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal, out):
+    """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern, summed as :func:`_schur` does."""
+    n = pointer.shape[0] - 1
+    acc = np.zeros(n)
+    for i in range(n):
+        for k in range(p11[i], p11[i + 1]):
+            acc[c11[k]] += v11[k]
+        for k in range(p10[i], p10[i + 1]):
+            m = c10[k]
+            s = v10[k] / diagonal[m]
+            for q in range(p01[m], p01[m + 1]):
+                acc[c01[q]] -= s * v01[q]
+        for k in range(pointer[i], pointer[i + 1]):
+            out[k] = acc[cols[k]]
+            acc[cols[k]] = 0.0
+
+
+class FreeBlocks:
+    """The free dofs of a grid matrix (one rank) as a 2 x 2 ``MATNEST`` of velocity and pressure
+    blocks, and the ``selfp`` Schur complement of its (1, 1) block.
+
+    Args:
+        grid_matrix: the :class:`fempm.matrix.GridMatrix` behind the system.
+        free: the free dofs (global numbers, increasing).
+        fields: components per field of the interleaved dofs (two fields).
+
+    Attributes:
+        nest: the PETSc ``MATNEST`` ``[[A00, A01], [A10, A11]]``.
+        schur: ``A11 - A10 diag(A00)^-1 A01`` (AIJ).
+        order: the global dof of every row of ``nest`` (the first field's dofs, then the second's).
+        index_sets: the rows of each field in ``nest`` (named as ``fields``).
+    """
+
+    def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int]):
+        self.grid_matrix = grid_matrix
+        lay = grid_matrix.layout
+        names = list(fields)
+        field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
+        field, position, rows0, rows1 = _numbering(np.asarray(free, dtype=np.int64), field_of_component,
+                                                   lay.num_owned_rows)
+        self.order = np.concatenate([rows0, rows1])
+        rows = (rows0, rows1)
+        self._blocks = {}
+        mats = [[None, None], [None, None]]
+        for i in range(2):
+            for j, (pointer, cols, source) in enumerate(_row_blocks(lay.indptr, lay.columns, rows[i], field, position)):
+                values = grid_matrix.values[source]
+                self._blocks[i, j] = (pointer, cols, source, values)
+                mats[i][j] = PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), (pointer, cols, values),
+                                                             comm=PETSc.COMM_SELF)
+        self._diagonal = _diagonal_positions(self._blocks[0, 0][0], self._blocks[0, 0][1])
+        if np.any(self._diagonal < 0):
+            raise ValueError("a free velocity dof has no diagonal entry")
+        self.nest = PETSc.Mat().createNest(mats, comm=PETSc.COMM_SELF)
+        self._mats = mats
+        self._schur_pointer, self._schur_cols, self._schur_values = _schur(
+            *self._block_arrays(1, 1), *self._block_arrays(1, 0), *self._block_arrays(0, 1),
+            self._blocks[0, 0][3][self._diagonal])
+        n1 = len(rows1)
+        self.schur = PETSc.Mat().createAIJWithArrays(
+            (n1, n1), (self._schur_pointer, self._schur_cols, self._schur_values), comm=PETSc.COMM_SELF)
+        isets = self.nest.getNestISs()[0]
+        self.index_sets = [(names[0], isets[0]), (names[1], isets[1])]
+
+    def _block_arrays(self, i, j):
+        pointer, cols, _, values = self._blocks[i, j]
+        return pointer, cols, values
+
+    def _fill_schur(self):
+        _schur_values(self._schur_pointer, self._schur_cols, *self._block_arrays(1, 1), *self._block_arrays(1, 0),
+                      *self._block_arrays(0, 1), self._blocks[0, 0][3][self._diagonal], self._schur_values)
+
+    def refill(self):
+        """Take the grid matrix's current values (same pattern)."""
+        source_values = self.grid_matrix.values
+        for (i, j), (_, _, source, values) in self._blocks.items():
+            np.take(source_values, source, out=values)
+            self._mats[i][j].stateIncrease()
+        self.nest.stateIncrease()
+        self._fill_schur()
+        self.schur.stateIncrease()
+
+    def destroy(self):
+        for row in self._mats:
+            for m in row:
+                m.destroy()
+        self.nest.destroy()
+        self.schur.destroy()
