@@ -6,6 +6,7 @@ import ufl
 from petsc4py import PETSc
 
 import fempm
+from fempm.implicit import ImplicitSolver
 
 
 def particles_at_gauss_points(grid, degree, density=lambda x: 1.0 + 0 * x[:, 0]):
@@ -73,3 +74,14 @@ def relative_difference(A, B):
 def to_dense(A):
     """A serial PETSc matrix as a dense numpy array."""
     return A.convert(PETSc.Mat.Type.DENSE).getDenseArray().copy()
+
+
+def resting_water(grid, width: float, depth: float, steps: int = 0, density: float = 1000.0):
+    """Water ``depth`` deep over ``[0, width]`` of ``grid``, 2 x 2 particles per cell, B-spline
+    implicit solver with default options, after ``steps`` steps."""
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.0, 0.0), (width, depth)), per_cell=2, density=density)
+    solver = ImplicitSolver(fempm.BSpline2(grid), water)
+    for _ in range(steps):
+        solver.step()
+    return solver

@@ -8,21 +8,15 @@ from mpi4py import MPI
 import fempm
 from fempm.errors import InputError
 from fempm.gauges import LevelGauge, PressureGauge, Sampler, sample
-from fempm.implicit import ImplicitSolver
 from fempm.verification import sample as sample_field
+from helpers import resting_water
 
 RHO, G, L, H = 1000.0, 9.81, 0.146, 0.292
 
 
 def column(comm=MPI.COMM_WORLD, steps: int = 0):
     """The dam-break column at rest in a tank as wide as it (10 x 40 cells), after ``steps`` steps."""
-    grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (L, 4 * L), (10, 40))
-    water = fempm.Particles(grid)
-    water.seed(fempm.Rectangle((0.0, 0.0), (L, H)), per_cell=2, density=RHO)
-    solver = ImplicitSolver(fempm.BSpline2(grid), water)
-    for _ in range(steps):
-        solver.step()
-    return solver
+    return resting_water(fempm.Grid.from_cells(comm, (0.0, 0.0), (L, 4 * L), (10, 40)), L, H, steps, RHO)
 
 
 GAUGES = [

@@ -16,10 +16,10 @@ import fempm
 from fempm import diagnostics, references, simulation
 from fempm.cases import channel, dambreak
 from fempm.eulerian import EulerianSolver
-from fempm.implicit import ImplicitSolver
 from fempm.options import Physics, Scheme
 from fempm.scene import scene_from_text
 from fempm.verification import advance, sample
+from helpers import resting_water
 
 RHO, G = 1000.0, 9.81
 DAMBREAK = (Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml").read_text()
@@ -43,13 +43,7 @@ def test_gauss_assembly_integrates_over_the_cut_tank(comm, Basis):
 def _resting_water(comm, width=0.5, height=0.3, depth=0.2, steps=0, h=0.04):
     """Water ``depth`` deep across a tank ``width`` x ``height`` (default 12.5 x 7.5 cells), 2 x 2 particles
     per cell, after ``steps`` steps of 1 ms."""
-    grid = fempm.Grid(comm, (0.0, 0.0), (width, height), h)
-    water = fempm.Particles(grid)
-    water.seed(fempm.Rectangle((0.0, 0.0), (width, depth)), per_cell=2, density=RHO)
-    solver = ImplicitSolver(fempm.BSpline2(grid), water)
-    for _ in range(steps):
-        solver.step()
-    return solver
+    return resting_water(fempm.Grid(comm, (0.0, 0.0), (width, height), h), width, depth, steps, RHO)
 
 
 def _column(comm, width, height, h=0.04, depth=0.2, steps=200):
