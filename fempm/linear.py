@@ -107,6 +107,14 @@ class SolveFailed(RuntimeError):
     """The linear solve did not succeed (singular factorisation, no convergence, NaN)."""
 
 
+def _check(reason: int, solution: np.ndarray):
+    """Raise :class:`SolveFailed` if the KSP's converged ``reason`` is a failure or the solution is not finite."""
+    if reason < 0:
+        raise SolveFailed(f"linear solve failed: {_REASONS.get(reason, reason)}")
+    if not np.all(np.isfinite(solution)):
+        raise SolveFailed("linear solve produced non-finite values (singular matrix?)")
+
+
 class LinearSolver:
     """A PETSc KSP applied to the free-dof block of a system.
 
@@ -193,10 +201,7 @@ class LinearSolver:
         if reason < 0 and self.exact_schur:
             reason = self._solve_by_lu(A_free, b_free, x_free)
         b.restoreSubVector(index_set, b_free)
-        if reason < 0:
-            raise SolveFailed(f"linear solve failed: {_REASONS.get(reason, reason)}")
-        if not np.all(np.isfinite(x_free.getArray(readonly=True))):
-            raise SolveFailed("linear solve produced non-finite values (singular matrix?)")
+        _check(reason, x_free.getArray(readonly=True))
         if x is None:
             x = b.duplicate()
         x.zeroEntries()
@@ -253,10 +258,7 @@ class LinearSolver:
             values[free] = x_sub.getArray(readonly=True)
         else:
             values[blocks.order] = x_free.getArray(readonly=True)
-        if reason < 0:
-            raise SolveFailed(f"linear solve failed: {_REASONS.get(reason, reason)}")
-        if not np.all(np.isfinite(values)):
-            raise SolveFailed("linear solve produced non-finite values (singular matrix?)")
+        _check(reason, values)
         if x is None:
             x = b.duplicate()
         x.setArray(values)
