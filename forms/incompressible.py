@@ -61,6 +61,45 @@ def pspg_tau(speed, dt, h, nu):
     return ((2 / dt) ** 2 + (2 * speed / h) ** 2 + (4 * nu / h**2) ** 2) ** -0.5
 
 
+class EndConfiguration:
+    """Gradients on the material's predicted configuration at the end of the step.
+
+    A Lagrangian grid moves with the material during the step: ``x = X + du``. The incompressibility
+    constraint and the stresses hold at ``t_{n+1}``, on the deformed configuration, not on the
+    grid's start configuration. Taken at the start, ``div v_{n+1} = 0`` differs from the true
+    constraint by ``O(dt |grad v|^2)``: a vortex rotating at rate omega expands at a rate
+    ``~ 2 omega^2 dt`` (the Gresho vortex's core grew in proportion to dt, and its angular momentum
+    with it). The map is predicted from the start-of-step state, so the forms stay linear::
+
+        F* = I + grad(dt v_n + dt^2/2 a_n),   J* = det F*,
+        grad_x f = grad f . F*^-1,   int ... dx_{n+1} = int ... J* dx
+
+    On a fixed grid (``convection`` = 1) the configuration does not move: ``F* = I``.
+    """
+
+    def __init__(self, s):
+        dt = s.constant("dt")
+        self.moving = not switched_on(s.constant("convection"))
+        if self.moving:
+            moved = dt * s.grid("grid_velocity") + dt**2 / 2 * s.grid("grid_acceleration")
+            F = ufl.Identity(len(moved)) + ufl.grad(moved)
+            self.J, self.F_inv = ufl.det(F), ufl.inv(F)
+        else:
+            self.J = 1
+
+    def grad(self, f):
+        """``grad_x f = grad f . F*^-1``."""
+        return ufl.dot(ufl.grad(f), self.F_inv) if self.moving else ufl.grad(f)
+
+    def div(self, w):
+        """``div_x w = tr(grad_x w)``."""
+        return ufl.tr(self.grad(w))
+
+    def eps(self, w):
+        """``eps_x(w) = (grad_x w + grad_x w^T) / 2``."""
+        return ufl.sym(self.grad(w))
+
+
 def convection(s, v_new):
     """Convective acceleration of a fixed (Eulerian) grid, linearised by Oseen's rule::
 
@@ -81,7 +120,7 @@ def convection(s, v_new):
 def momentum(s):
     """Momentum balance, Lagrangian, weak (method.md, "Momentum"; eq. 1, first row)::
 
-        int rho (a_{n+1} - g) . w  dx_lumped  +  int 2 mu eps(v_{n+1}) : eps(w) - p div w  dx
+        int rho (a_{n+1} - g) . w  dx_lumped  +  int (2 mu eps_x(v_{n+1}) : eps_x(w) - p div_x w) J* dx
         [ + int rho (v_n . grad) v_{n+1} . w  dx   on a fixed grid, see convection() ]
 
     The inertia is lumped (the M of eq. 1 is the lumped mass matrix ``m_i``) and uses
@@ -100,7 +139,11 @@ def momentum(s):
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     a_new = newmark.acceleration(du, v_n, a_n, dt, beta)  # the Newmark update of method.md,
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, gamma, a_new=a_new)  # see fempm/newmark.py
-    stress = 2 * mu * ufl.inner(eps(v_new), eps(w)) - p * ufl.div(w) if switched_on(mu) else -p * ufl.div(w)
+    end = EndConfiguration(s)  # the stresses act on the end-of-step configuration
+    stress = -p * end.div(w)
+    if switched_on(mu):
+        stress = stress + 2 * mu * ufl.inner(end.eps(v_new), end.eps(w))
+    stress = end.J * stress
     carried = convection(s, v_new)
     if carried is not None:
         stress = stress + rho * ufl.inner(carried, w)
@@ -110,7 +153,7 @@ def momentum(s):
 def continuity(s):
     """Continuity with the volume correction (method.md eq. 3, after Asai et al. 2012)::
 
-        int q (div v_{n+1} - (alpha / rho) max(rho~ - rho, 0) / dt) dx
+        int q (J* div_x v_{n+1} - (alpha / rho) max(rho~ - rho, 0) / dt) dx
 
     ``rho~`` is the smoothed density of eq. (2), ``rho~_i = sum_p W_i(x_p) m_p``,
     ``W_i = N_i / int N_i dx``: where particles crowd (rho~ > rho) the correction asks
@@ -125,25 +168,29 @@ def continuity(s):
     grid function ``density_error`` (``fempm.density.DensityError``): ``rho~ / rho - 1``,
     both signs, where a function's support lies deep in the water, and crowding only in
     the band along a free surface.
+
+    The divergence is the end-of-step one, ``J* div_x`` (see :class:`EndConfiguration`).
     """
     du, _ = ufl.split(s.grid("U"))
     _, q = s.test
     dt, beta, gamma, alpha = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("alpha")
     rho = s.particle("density")
     v_new = newmark.velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
+    end = EndConfiguration(s)
+    expansion = end.J * end.div(v_new)
     if not switched_on(alpha):
-        return q * ufl.div(v_new) * s.dx
+        return q * expansion * s.dx
     if switched_on(s.constant("surface_aware")):
-        return q * (ufl.div(v_new) - alpha * s.grid("density_error") / dt) * s.dx
+        return q * (expansion - alpha * s.grid("density_error") / dt) * s.dx
     crowding = ufl.max_value(s.grid("smoothed_density") - rho, 0)
-    return q * (ufl.div(v_new) - alpha / rho * crowding / dt) * s.dx
+    return q * (expansion - alpha / rho * crowding / dt) * s.dx
 
 
 def pspg(s):
     """Pressure-stabilising Petrov-Galerkin term (Tezduyar 1992; eq. 1, K_v^stab and K_p^stab)::
 
-        int (tau / rho) grad q . (rho (v_{n+1} - v_n) / dt + grad p - rho g
-                                 - div(2 mu eps(v_{n+1}))) dx
+        int (tau / rho) grad_x q . (rho (v_{n+1} - v_n) / dt + grad_x p - rho g
+                                   - div(2 mu eps(v_{n+1}))) J* dx
         [ + int tau grad q . (v_n . grad) v_{n+1} dx   on a fixed grid, see convection() ]
 
     the strong momentum residual tested with ``grad q``; it gives the continuity rows a
@@ -154,7 +201,9 @@ def pspg(s):
     exact; Q1: its mixed derivative only). The inertia is the step's mean acceleration
     ``(v_{n+1} - v_n) / dt``: with the trapezoidal rule the end-point ``a_{n+1}``
     alternates in sign from step to step, and fed into the pressure it grows a
-    sign-alternating pressure (README, "Where fempm departs from method.md").
+    sign-alternating pressure (README, "Where fempm departs from method.md"). The gradients of
+    ``q`` and ``p`` are the end-of-step ones, as in :func:`momentum`; the viscous part, a
+    correction of order ``tau``, stays on the start configuration.
     """
     du, p = ufl.split(s.grid("U"))
     _, q = s.test
@@ -165,13 +214,14 @@ def pspg(s):
     tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), dt, s.h, mu / rho)
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
-    residual = rho * (v_new - v_n) / dt + ufl.grad(p) - rho * s.constant("gravity")
+    end = EndConfiguration(s)
+    residual = rho * (v_new - v_n) / dt + end.grad(p) - rho * s.constant("gravity")
     if switched_on(mu):
         residual = residual - ufl.div(2 * mu * eps(v_new))
     carried = convection(s, v_new)
     if carried is not None:
         residual = residual + rho * carried
-    return s.constant("pspg") * tau / rho * ufl.inner(ufl.grad(q), residual) * s.dx
+    return s.constant("pspg") * tau / rho * ufl.inner(end.grad(q), residual) * end.J * s.dx
 
 
 def residual(s):
