@@ -144,10 +144,11 @@ if comm.rank == 0:
 #
 # Every run must complete, and a run that reaches the steady state (15 $L/U$) must be within the
 # bound measured on the default set-up (32 cells, B-spline, 2 x 2 particles per cell): FEM-only
-# 0.95 % of $U$ from Ghia's table, the MPM 1.52 % ($\max(e_u, e_v)$). Shorter runs are not checked.
+# 0.95 % of $U$ from Ghia's table, the MPM 1.9 % ($\max(e_u, e_v)$). Shorter runs are not checked.
 
 # %%
-BOUNDS = {"FEM-only": 0.0095, "MPM": 0.0152}  # measured 0.00903 (v) and 0.01443 (u), 32 cells, B-spline
+BOUNDS = {"FEM-only": 0.0095, "MPM": 0.019}  # measured 0.00903 (v) and 0.0179 (v), 32 cells, B-spline
+# (the MPM's 0.01443 with the divergence on the start configuration; see tests/test_cavity.py)
 rows = [r.measurement for r in runs]
 failed = over_bounds(rows, BOUNDS) if args.end_time >= cavity.END_TIME else [
     f"{m.method}: {m.cause}" for m in rows if m.status != "completed"]

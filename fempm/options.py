@@ -175,7 +175,7 @@ class Controls:
     min_pressure_support: float = 0.05
     matrix_region: str = "auto"
     pressure_limit: float | None = None
-    energy_gain_limit: float | None = 0.25
+    energy_gain_limit: float | None = 0.1
     step_growth: float = 1.25
     step_retries: int = 3
     petsc_options: dict = field(default_factory=dict)

@@ -61,43 +61,48 @@ def pspg_tau(speed, dt, h, nu):
     return ((2 / dt) ** 2 + (2 * speed / h) ** 2 + (4 * nu / h**2) ** 2) ** -0.5
 
 
-class EndConfiguration:
-    """Gradients on the material's predicted configuration at the end of the step.
+#: the largest |grad(dt v_n)| the predicted end-of-step map takes at face value (see end_map)
+MAP_LIMIT = 0.25
 
-    A Lagrangian grid moves with the material during the step: ``x = X + du``. The incompressibility
-    constraint and the stresses hold at ``t_{n+1}``, on the deformed configuration, not on the
-    grid's start configuration. Taken at the start, ``div v_{n+1} = 0`` differs from the true
-    constraint by ``O(dt |grad v|^2)``: a vortex rotating at rate omega expands at a rate
-    ``~ 2 omega^2 dt`` (the Gresho vortex's core grew in proportion to dt, and its angular momentum
-    with it). The map is predicted from the start-of-step state, so the forms stay linear::
 
-        F* = I + grad(dt v_n + dt^2/2 a_n),   J* = det F*,
-        grad_x f = grad f . F*^-1,   int ... dx_{n+1} = int ... J* dx
+def end_map(s):
+    """The material's predicted map over the step, ``F* = I + G`` with ``G = grad(dt v_n)``.
 
-    On a fixed grid (``convection`` = 1) the configuration does not move: ``F* = I``.
+    A Lagrangian grid moves with the material during the step, and the stresses and the
+    incompressibility of ``t_{n+1}`` hold on the deformed configuration. Taken on the grid's start
+    configuration instead, ``div v_{n+1} = 0`` misses it by ``O(dt |grad v|^2)``: a vortex
+    rotating at rate omega expands at ~ ``2 omega^2 dt`` (the Gresho vortex's core grew, and its
+    angular momentum, in proportion to dt). The map is predicted from the start of the step, so
+    the forms stay linear; a step so large that it would fold (``|G|`` ~ 1: the flow crosses
+    cells in a step) is limited back towards the start configuration::
+
+        G = grad(dt v_n) / max(1, |grad(dt v_n)| / MAP_LIMIT)
+
+    ``None`` on a fixed grid (``convection`` = 1), where nothing moves.
     """
+    if switched_on(s.constant("convection")):
+        return None
+    G = ufl.grad(s.constant("dt") * s.grid("grid_velocity"))
+    G = G / ufl.max_value(1, ufl.sqrt(ufl.inner(G, G)) / MAP_LIMIT)
+    return ufl.Identity(2) + G
 
-    def __init__(self, s):
-        dt = s.constant("dt")
-        self.moving = not switched_on(s.constant("convection"))
-        if self.moving:
-            moved = dt * s.grid("grid_velocity") + dt**2 / 2 * s.grid("grid_acceleration")
-            F = ufl.Identity(len(moved)) + ufl.grad(moved)
-            self.J, self.F_inv = ufl.det(F), ufl.inv(F)
-        else:
-            self.J = 1
 
-    def grad(self, f):
-        """``grad_x f = grad f . F*^-1``."""
-        return ufl.dot(ufl.grad(f), self.F_inv) if self.moving else ufl.grad(f)
+def end_divergence(s, w):
+    """``J* div_x w = tr(grad w . J* F*^-1) = grad w : cof F*``: the divergence on the end-of-step
+    configuration, over the start one's volume (:func:`end_map`; ``div w`` on a fixed grid).
+    ``cof F*`` has no division: in 2D it is linear in ``G``."""
+    F = end_map(s)
+    return ufl.div(w) if F is None else ufl.inner(ufl.grad(w), ufl.cofac(F))
 
-    def div(self, w):
-        """``div_x w = tr(grad_x w)``."""
-        return ufl.tr(self.grad(w))
 
-    def eps(self, w):
-        """``eps_x(w) = (grad_x w + grad_x w^T) / 2``."""
-        return ufl.sym(self.grad(w))
+def viscous_work(s, mu, v, w):
+    """``2 mu eps_x(v) : eps_x(w) J*`` with ``eps_x(v) = sym(grad v . F*^-1)``: the viscous stress's
+    work on the end-of-step configuration (:func:`end_map`; ``2 mu eps(v) : eps(w)`` on a fixed grid)."""
+    F = end_map(s)
+    if F is None:
+        return 2 * mu * ufl.inner(eps(v), eps(w))
+    F_inv = ufl.inv(F)
+    return 2 * mu * ufl.inner(ufl.sym(ufl.dot(ufl.grad(v), F_inv)), ufl.sym(ufl.dot(ufl.grad(w), F_inv))) * ufl.det(F)
 
 
 def convection(s, v_new):
@@ -120,7 +125,7 @@ def convection(s, v_new):
 def momentum(s):
     """Momentum balance, Lagrangian, weak (method.md, "Momentum"; eq. 1, first row)::
 
-        int rho (a_{n+1} - g) . w  dx_lumped  +  int (2 mu eps_x(v_{n+1}) : eps_x(w) - p div_x w) J* dx
+        int rho (a_{n+1} - g) . w  dx_lumped  +  int (2 mu eps_x(v_{n+1}) : eps_x(w) - p div_x w) J*  dx
         [ + int rho (v_n . grad) v_{n+1} . w  dx   on a fixed grid, see convection() ]
 
     The inertia is lumped (the M of eq. 1 is the lumped mass matrix ``m_i``) and uses
@@ -139,11 +144,9 @@ def momentum(s):
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     a_new = newmark.acceleration(du, v_n, a_n, dt, beta)  # the Newmark update of method.md,
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, gamma, a_new=a_new)  # see fempm/newmark.py
-    end = EndConfiguration(s)  # the stresses act on the end-of-step configuration
-    stress = -p * end.div(w)
+    stress = -p * end_divergence(s, w)  # on the end-of-step configuration, see end_map()
     if switched_on(mu):
-        stress = stress + 2 * mu * ufl.inner(end.eps(v_new), end.eps(w))
-    stress = end.J * stress
+        stress = stress + viscous_work(s, mu, v_new, w)
     carried = convection(s, v_new)
     if carried is not None:
         stress = stress + rho * ufl.inner(carried, w)
@@ -169,15 +172,14 @@ def continuity(s):
     both signs, where a function's support lies deep in the water, and crowding only in
     the band along a free surface.
 
-    The divergence is the end-of-step one, ``J* div_x`` (see :class:`EndConfiguration`).
+    The divergence is the end-of-step one, ``J* div_x`` (see :func:`end_map`).
     """
     du, _ = ufl.split(s.grid("U"))
     _, q = s.test
     dt, beta, gamma, alpha = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("alpha")
     rho = s.particle("density")
     v_new = newmark.velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
-    end = EndConfiguration(s)
-    expansion = end.J * end.div(v_new)
+    expansion = end_divergence(s, v_new)
     if not switched_on(alpha):
         return q * expansion * s.dx
     if switched_on(s.constant("surface_aware")):
@@ -189,8 +191,8 @@ def continuity(s):
 def pspg(s):
     """Pressure-stabilising Petrov-Galerkin term (Tezduyar 1992; eq. 1, K_v^stab and K_p^stab)::
 
-        int (tau / rho) grad_x q . (rho (v_{n+1} - v_n) / dt + grad_x p - rho g
-                                   - div(2 mu eps(v_{n+1}))) J* dx
+        int (tau / rho) grad q . (rho (v_{n+1} - v_n) / dt + grad p - rho g
+                                 - div(2 mu eps(v_{n+1}))) dx
         [ + int tau grad q . (v_n . grad) v_{n+1} dx   on a fixed grid, see convection() ]
 
     the strong momentum residual tested with ``grad q``; it gives the continuity rows a
@@ -201,9 +203,7 @@ def pspg(s):
     exact; Q1: its mixed derivative only). The inertia is the step's mean acceleration
     ``(v_{n+1} - v_n) / dt``: with the trapezoidal rule the end-point ``a_{n+1}``
     alternates in sign from step to step, and fed into the pressure it grows a
-    sign-alternating pressure (README, "Where fempm departs from method.md"). The gradients of
-    ``q`` and ``p`` are the end-of-step ones, as in :func:`momentum`; the viscous part, a
-    correction of order ``tau``, stays on the start configuration.
+    sign-alternating pressure (README, "Where fempm departs from method.md").
     """
     du, p = ufl.split(s.grid("U"))
     _, q = s.test
@@ -214,14 +214,13 @@ def pspg(s):
     tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), dt, s.h, mu / rho)
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
-    end = EndConfiguration(s)
-    residual = rho * (v_new - v_n) / dt + end.grad(p) - rho * s.constant("gravity")
+    residual = rho * (v_new - v_n) / dt + ufl.grad(p) - rho * s.constant("gravity")
     if switched_on(mu):
         residual = residual - ufl.div(2 * mu * eps(v_new))
     carried = convection(s, v_new)
     if carried is not None:
         residual = residual + rho * carried
-    return s.constant("pspg") * tau / rho * ufl.inner(end.grad(q), residual) * end.J * s.dx
+    return s.constant("pspg") * tau / rho * ufl.inner(ufl.grad(q), residual) * s.dx
 
 
 def residual(s):

@@ -71,7 +71,7 @@ FORMS_MISTAKES = [
      r"forms file '.*', line \d+, in residual \(return s.test\[0\] \* s.dx\): ValueError: Can only integrate scalar "
      r"expressions. The integrand is a tensor expression with value shape \(2,\)"),
     ("dot of a vector and a scalar",
-     ("    return q * ufl.div(v_new) * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"),
+     ("    return q * expansion * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"),
      r"forms file '.*', line \d+, in continuity \(return ufl.dot\(v_new, q\) \* s.dx\): ValueError: Dot product "
      r"requires non-scalar arguments, got arguments with ranks 1 and 0."),
     ("forgotten measure",
@@ -115,13 +115,13 @@ def _in_process(main, argv, status):
 
 def test_the_command_reports_a_forms_mistake_with_status_2_and_an_edited_switch_works(tmp_path):
     forms = tmp_path / "forms.py"
-    forms.write_text(FORMS.replace("    return q * ufl.div(v_new) * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"))
+    forms.write_text(FORMS.replace("    return q * expansion * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"))
     scene = tmp_path / "scene.toml"
     scene.write_text(DAMBREAK.replace("volume_correction = 0.1 ", "volume_correction = 0.0 "))
     status, out, err = fempm("check", scene, "--forms", forms)
     assert status == 2 and "ValueError: Dot product requires non-scalar arguments" in one_line(err)
     # the ordinary edit `mu = 1.0e4 * mu` before `if switched_on(mu)` compiles and runs
-    forms.write_text(FORMS.replace("    stress = 2 * mu", "    mu = 1.0e4 * mu\n    stress = 2 * mu", 1))
+    forms.write_text(FORMS.replace("    stress = -p", "    mu = 1.0e4 * mu\n    stress = -p", 1))
     scene.write_text(_short(end=0.002))
     status, out, err = fempm("run", scene, "--forms", forms, "--out", tmp_path / "out", "--quiet")
     assert status == 0, err
@@ -280,14 +280,16 @@ def test_sigint_during_start_up_is_a_clean_stop(tmp_path, delay):
 
 def test_a_fast_body_without_gravity_is_not_stopped_by_a_limit_made_for_water_at_rest(tmp_path):
     """On main the default limit was 20 rho g H of water under Earth's gravity whatever the scene:
-    a body at 100 m/s without gravity stopped at step 1 with "pressure oscillation" (-1.8e7 Pa)."""
+    a body at 100 m/s without gravity stopped at step 1 with "pressure oscillation" (-1.8e7 Pa).
+    At 0.7 cells per step (dt 1e-4 s): at 7 (dt 1e-3 s) the scheme's energy error of the big step
+    (a rise of 14 % of the start) is an eruption the energy check rightly stops."""
     from fempm import cli
 
     text = (_short(end=0.003).replace("gravity = [0.0, -9.81]", "gravity = [0.0, 0.0]")
             .replace("particles_per_cell = 4 ", "particles_per_cell = 4\nvelocity = [100.0, 0.0]\n", 1)
-            .replace("upper = [0.146, 0.292]", "upper = [0.146, 0.146]"))
+            .replace("upper = [0.146, 0.292]", "upper = [0.146, 0.146]").replace("dt = 1.0e-3 ", "dt = 1.0e-4 "))
     (tmp_path / "scene.toml").write_text(text)
     _in_process(cli.main, ["run", str(tmp_path / "scene.toml"), "--out", str(tmp_path / "out"), "--quiet"], status=0)
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    assert summary["status"] == "completed" and summary["steps"] == 3
+    assert summary["status"] == "completed" and summary["steps"] == 30  # the lowest pressure: -1.3e8 Pa
     assert np.isfinite(summary["pressure_min_Pa"])

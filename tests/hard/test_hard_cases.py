@@ -62,33 +62,33 @@ def bound(full: bool, short: float, long: float) -> float:
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
 def test_dam_break_at_ten_times_the_seeds_step(full):
-    """dt = 1e-2 s: the advective CFL max |v| dt / h reaches 3.2 (at the seed's step 0.34); walls
-    stop displacements that would cross them. The energy error of the big step shows (13 % of
-    the start regained in the sloshing between 1.07 s and 1.45 s) but stays bounded, and the
-    volume holds."""
+    """dt = 1e-2 s: the advective CFL max |v| dt / h reaches 2.9 (at the seed's step 0.34); walls
+    stop displacements that would cross them. The energy error of the big step shows (3 % of
+    the start regained in the sloshing; 13 % with the start configuration's divergence) but stays
+    bounded, and the volume holds."""
     o = measured("dt-10x", full)
-    # measured 1.962, 1.0, 0.128 (affine 2.317, 1.0, 0.106; FLIP/PIC 2.713, 1.01225, 0.0845)
-    assert_sound(o, 800, speed_ratio=bound(full, 1.98, 2.73), energy_max=1.0 + bound(full, EXACT, 0.0125),
-                 energy_rise=0.130)
-    assert o.max_cfl > 3.15  # measured 3.197 (affine 3.774, FLIP/PIC 4.420)
-    assert 0.88 <= cell_ratio(o) <= 0.97  # measured 0.890 (2 s; affine 0.855); FLIP/PIC 0.915 (2 s), 0.965 (4 s)
-    assert o.wall_stops >= 1180  # measured 1211 (2 s; affine 1801); FLIP/PIC 1332 (2 s), 1618 (4 s)
+    # measured 1.791, 1.0, 0.0290 (start-configuration divergence 1.962, 1.0, 0.128; FLIP/PIC 2.713, 1.01225,
+    # 0.0845); the full version was not rerun with the end-of-step divergence
+    assert_sound(o, 800, speed_ratio=bound(full, 1.80, 2.73), energy_max=1.0 + bound(full, EXACT, 0.0125),
+                 energy_rise=bound(full, 0.030, 0.130))
+    assert o.max_cfl > 2.85  # measured 2.918 (start-configuration divergence 3.197, FLIP/PIC 4.420)
+    assert 0.88 <= cell_ratio(o) <= 0.99  # measured 0.985 (2 s; before 0.890); FLIP/PIC 0.915 (2 s), 0.965 (4 s)
+    assert o.wall_stops >= 540  # measured 553 (2 s; before 1211); FLIP/PIC 1332 (2 s), 1618 (4 s)
 
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
 def test_at_twenty_times_the_seeds_step_the_eruption_is_diagnosed(full):
     """Past the limit: at dt = 2e-2 s (advective CFL 16) particles cross several cells a step
     and pile up on the walls; without a check the water's cells fell to about half and the
-    energy rose 56 % above the start by t ~ 0.6 s, the run ending 'completed'. With affine-FLIP
-    and one-sided walls the water crowds (200 cells to 68) and loses as much potential energy as
-    it gains kinetic (a rise of 20.5 %, under the 25 % of ``Controls.energy_gain_limit``); the
-    energy check's speed bound (twice a fall from the top of the box, 6.8 m/s) stops it, finite,
-    with its mass."""
+    energy rose 56 % above the start by t ~ 0.6 s, the run ending 'completed'. With affine-FLIP,
+    one-sided walls and the end-of-step divergence the energy regained rises past the 10 % of
+    ``Controls.energy_gain_limit`` (it reached 21 %, the run ending 'completed', under the earlier
+    25 %); the energy check stops it, finite, with its mass."""
     o = measured("dt-20x", full)
     assert o.run.status == "stopped" and o.run.cause.startswith("energy growth")
-    # measured: 40 steps, 0.8 s, a particle at 9.49 m/s (FLIP/PIC two-sided: 29 steps, 0.58 s, energy;
-    # affine-FLIP two-sided: 34 steps, 0.68 s)
-    assert o.run.steps == 40 and o.run.time == pytest.approx(0.8)
+    # measured: 31 steps, 0.62 s, a rise of 13 % (start-configuration divergence: 40 steps, 0.8 s, a particle
+    # at 9.49 m/s; FLIP/PIC two-sided: 29 steps, 0.58 s; affine-FLIP two-sided: 34 steps, 0.68 s)
+    assert o.run.steps == 31 and o.run.time == pytest.approx(0.62)
     assert (o.finite, o.particles, abs(o.mass_error) <= 1e-14) == (True, 800, True)
 
 
@@ -121,8 +121,8 @@ def test_dam_break_onto_an_obstacle(full):
     """scenes/obstacle.toml: the surge hits a block, splashes over it in a thin sheet and
     isolated particles; none enters the block (that would stop the run), none is lost."""
     o = measured("obstacle", full)
-    # measured 2.405, 1.00048, 0.0037 (affine 2.311, 1.00048, 0.0037; FLIP/PIC 1.562, 1.0, 0)
-    assert_sound(o, 800, speed_ratio=2.42, energy_max=1.0 + bound(full, 6e-4, 6e-4),
+    # measured 2.427, 1.00009, 0.0014 (start-configuration divergence 2.405, 1.00048, 0.0037; FLIP/PIC 1.562)
+    assert_sound(o, 800, speed_ratio=2.44, energy_max=1.0 + bound(full, 6e-4, 6e-4),
                  energy_rise=bound(full, 0.004, 0.004))
     assert 1.05 <= cell_ratio(o) <= 1.24  # measured 1.235 (0.6 s; affine 1.225); FLIP/PIC 1.06 (0.6 s), 1.125 (2 s)
     assert not o.solver.grid.blocked[o.solver.particles.cell].any()
@@ -163,18 +163,22 @@ def test_a_single_particle_falls_freely_and_comes_to_rest_on_the_floor(full):
 def test_a_sparse_cloud_falls_freely_and_lands(full):
     """48 particles, one in every other cell (every cell around each is empty): no pressure
     holds them until they land; they fall together as one particle does, then spread over the
-    floor in a layer a particle or two deep, their energy spent in the landing."""
+    floor in a layer a particle or two deep, their energy spent in the landing. The landing is
+    fragile (an open defect): a few particles gathered in a corner can hold a tension (-12 to
+    -53 kPa) that throws one out; at dt 9e-4 s and 1.1e-3 s a particle leaves at 2.5-3.6 m/s
+    (the energy check stops the second)."""
     o = measured("sparse-cloud", full)
-    # measured 1.046, 1.0, 0.0088 (affine 1.046, 1.0, 0.0094; FLIP/PIC 0.865, 1.0, 0.0025 (0.6 s), 0.004 (2 s))
+    # measured 1.030, 1.0, 0.0237 (start-configuration divergence 1.046, 1.0, 0.0094; FLIP/PIC 0.865, 1.0,
+    # 0.0025 (0.6 s), 0.004 (2 s)); the full version was not rerun with the end-of-step forms
     assert_sound(o, len(hc.SPARSE), speed_ratio=1.05, energy_max=1.0 + EXACT,
-                 energy_rise=bound(full, 0.0095, 0.0095))
+                 energy_rise=bound(full, 0.025, 0.025))
     assert free_fall_error(o, hc.SPARSE[:, 1].min()) <= 0.0048  # measured 0.00457 (affine 0.00459)
     # m, 1.5 h; measured 0.0217 (0.6 s; affine 0.0171); FLIP/PIC 0.0165 (0.6 s), 0.0154 (2 s)
     assert o.surface_height <= 0.0220
-    # m; 0.0155 at 0.6 s (affine 0.0141, FLIP/PIC 0.0165)
+    # m; 0.0157 at 0.6 s (before 0.0155, FLIP/PIC 0.0165)
     assert o.history["centroid"][-1, 1] <= bound(full, 0.0170, 2 * hc.h)
-    # measured 0.0764 at 0.6 s (affine 0.0729, FLIP/PIC 0.0486): the layer still moves
-    assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.078, 0.1)
+    # measured 0.0609 at 0.6 s (before 0.0764, FLIP/PIC 0.0486): the layer still moves
+    assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.065, 0.1)
 
 
 @pytest.mark.mpi
@@ -188,8 +192,8 @@ def test_water_driven_into_a_corner(full):
     # 20 x 20 particles; measured 1.902, 1.0, 0.00231 (affine 1.903, 1.0, 0.0021; FLIP/PIC 1.869, 1.0, 0)
     assert_sound(o, 400, speed_ratio=1.91, energy_max=1.0 + bound(full, EXACT, 1e-4),
                  energy_rise=bound(full, 0.0024, 0.0022))
-    # measured 1.455 (0.5 s; affine 1.464); FLIP/PIC 1.273 (0.5 s), 0.99 (3 s)
-    assert 0.98 <= cell_ratio(o) <= 1.47
+    # measured 1.491 (0.5 s; start-configuration divergence 1.455); FLIP/PIC 1.273 (0.5 s), 0.99 (3 s)
+    assert 0.98 <= cell_ratio(o) <= 1.50
     # the centroid's distance from the corner along gravity: 2/3 of the depth sqrt(A) of the
     # right-angled triangle of area A the water settles into
     if full:
@@ -207,12 +211,12 @@ def test_a_long_run_settles_with_its_volume(full):
     if full:  # in 40 s of sloshing the energy once rises by 0.4 % of the start's
         assert_sound(o, 800, speed_ratio=1.80, energy_max=1.0 + 1e-4, energy_rise=0.0045)  # 1.78, 1.000, 0.004
     else:  # the big step's energy error, as in test_dam_break_at_ten_times_the_seeds_step
-        # measured 1.962, 1.0, 0.128 (affine 2.317, 1.0, 0.106; FLIP/PIC 2.713, 1.01225, 0.0845)
-        assert_sound(o, 800, speed_ratio=1.98, energy_max=1.0 + EXACT, energy_rise=0.130)
-    # the layer: 68.7 mm after 5 s, still sloshing (affine 60.3 mm, FLIP/PIC 68.6 mm), and 67.7 mm once the
-    # Schur blocks were cut by fempm.schur (the same solve to 1e-14: a sloshing surface's snapshot moves with
-    # round-off, hence 3 % in CI); 77.6 mm after 40 s (FLIP/PIC; SETTLED_DEPTH = 73 mm)
-    assert o.surface_height == pytest.approx(bound(full, 0.0687, 0.0776), rel=bound(full, 0.03, 0.01))
-    # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.280 at 5 s
-    # (affine 0.310)
+        # measured 1.791, 1.0, 0.0290 (start-configuration divergence 1.962, 1.0, 0.128; FLIP/PIC 2.713)
+        assert_sound(o, 800, speed_ratio=1.80, energy_max=1.0 + EXACT, energy_rise=0.030)
+    # the layer: 72.1 mm after 5 s, still sloshing (start-configuration divergence 67.7 mm, FLIP/PIC 68.6 mm;
+    # a sloshing surface's snapshot moves with round-off, hence 3 % in CI); 77.6 mm after 40 s (FLIP/PIC;
+    # SETTLED_DEPTH = 73 mm)
+    assert o.surface_height == pytest.approx(bound(full, 0.0721, 0.0776), rel=bound(full, 0.03, 0.01))
+    # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.277 at 5 s
+    # (start-configuration divergence 0.280)
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.29, 1.4 * SETTLED_DEPTH / hc.H)
