@@ -112,7 +112,7 @@ class ImplicitSolver(Stepper):
         rho = s.fields["smoothed_density"].values
         rho[:] = transfer.smoothed_density(m, self._integrals[:, None])
         fraction = rho / self._reference_density
-        if self.scheme.alpha > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
+        if s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
             s.fields["density_error"].values[:, 0] = self._density_error(fraction[:, 0])
         moving = (m > 0) & (fraction >= c.min_support_fraction)
         safe = np.where(moving, m, 1.0)

@@ -82,7 +82,7 @@ class GridSystem:
         self.pressure = GridFunction(self.scalar_space, "pressure")
         self.constants = {
             "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
-            "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.alpha, "pspg": float(scheme.pspg),
+            "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.volume_share(scheme.dt), "pspg": float(scheme.pspg),
             "surface_aware": float(scheme.surface_aware),
             "convection": float(convection),
         }
@@ -99,8 +99,10 @@ class GridSystem:
         return self.constants["dt"]
 
     def set_step(self, dt: float):
-        """The size of the step about to be taken (read by the forms at assembly)."""
+        """The size of the step about to be taken (read by the forms at assembly, with the volume
+        correction's share of it)."""
         self.constants["dt"] = dt
+        self.constants["alpha"] = self.scheme.volume_share(dt)
 
     def impose_walls(self):
         """v_n and a_n on the held wall dofs: the walls' own (so ``v_{n+1} = v_wall``, ``a_{n+1} = 0``)."""

@@ -87,8 +87,10 @@ BAD_SCENES = [
      r"solver.linear: must be one of 'direct', 'iterative', got 'cg'"),
     ("unknown wall condition", _edit('left = "slip"', 'left = "sticky"'), [],
      r"walls.left: must be one of 'slip', 'no-slip', got 'sticky'"),
-    ("volume correction above one", _edit("volume_correction = 0.1", "volume_correction = 1.5"), [],
+    ("volume correction above one", _edit("pic_rate = 100.0", "pic_rate = 100.0\nvolume_correction = 1.5"), [],
      r"solver.volume_correction: must be a number in \[0, 1\], got 1.5"),
+    ("volume correction rate negative", _edit("volume_correction_rate = 100.0", "volume_correction_rate = -1.0"), [],
+     r"solver.volume_correction_rate: must be a number >= 0, got -1.0 \(1/s\)"),
     ("negative viscosity", _edit("viscosity = 1.0e-3", "viscosity = -1.0"), [],
      r"fluid.viscosity: must be a number >= 0, got -1.0 \(Pa s\)"),
     ("boolean as a string", _edit("pspg = true", 'pspg = "yes"'), [], r"solver.pspg: must be true or false, got 'yes'"),
@@ -259,7 +261,7 @@ def test_dambreak_scene_is_the_seed_setup(comm):
     assert solver.grid.h == grid.h and solver.particles.global_count() == 800
     assert np.array_equal(solver.particles.x, seeded.x) and np.array_equal(solver.particles.id, seeded.id)
     physics, scheme = solver.physics, solver.scheme
-    assert (scheme.dt, physics.viscosity, scheme.alpha, scheme.pspg, scheme.pic_blend, physics.gravity) == \
+    assert (scheme.dt, physics.viscosity, scheme.volume_share(scheme.dt), scheme.pspg, scheme.pic_blend, physics.gravity) == \
         (1e-3, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
     assert (scheme.transfer, scheme.pic_rate) == ("affine-flip", 100.0)
     assert solver.particles["affine_velocity"].shape == solver.particles["affine_acceleration"].shape == (
