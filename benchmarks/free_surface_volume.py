@@ -1,7 +1,7 @@
 """Does the volume correction keep a free surface where it is? (issue 11, item 4)
 
 Two cases (ported from the spike's benchmark onto fempm.options), each with the scheme's
-volume correction at ``--alpha-rate`` per second (method.md eq. 3; 0: off):
+volume correction ``--alpha`` (method.md eq. 3; 0: off):
 
 * ``column``: the dam-break column at rest in a tank as wide as it (10 x 40 cells, 2 x 2
   particles per cell) for ``--column-time`` seconds (default 10; issue 11's target: volume
@@ -17,7 +17,7 @@ apart). (The particles' own volume is constant; what the correction changes is h
 they stand, so the surface's height.) The drift per second is the slope of a straight line
 fitted to the volume after the first half second, over the starting volume::
 
-    python benchmarks/free_surface_volume.py [--cases column slosh] [--alpha-rate 100] [--surface-aware] [--out FILE.json]
+    python benchmarks/free_surface_volume.py [--cases column slosh] [--alpha 0.1] [--surface-aware] [--out FILE.json]
 """
 
 from __future__ import annotations
@@ -111,24 +111,23 @@ def run_case(name: str, scheme: Scheme, end_time: float, every: float = 0.01) ->
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
-    parser.add_argument("--alpha-rate", type=float, default=Scheme.alpha_rate,
-                        help=f"volume correction per second, 1/s (default {Scheme.alpha_rate:g})")
+    parser.add_argument("--alpha", type=float, default=Scheme.alpha, help="volume correction (default 0.1)")
     parser.add_argument("--surface-aware", action="store_true", help="Scheme.surface_aware (fempm.density)")
     parser.add_argument("--column-time", type=float, default=10.0)
     parser.add_argument("--slosh-time", type=float, default=5.0)
     parser.add_argument("--out", help="write the results as JSON here")
     args = parser.parse_args(argv)
-    scheme = Scheme(alpha_rate=args.alpha_rate, surface_aware=args.surface_aware)
+    scheme = Scheme(alpha=args.alpha, surface_aware=args.surface_aware)
     results = [run_case(name, scheme, args.column_time if name == "column" else args.slosh_time)
                for name in args.cases]
     if MPI.COMM_WORLD.rank == 0:
         for r in results:
-            print(f"{r['case']:7s} alpha rate {args.alpha_rate:g}/s{' surface-aware' if args.surface_aware else ''}: {r['status']}, t = {r['time']:.2f} s, volume change "
+            print(f"{r['case']:7s} alpha {args.alpha:g}{' surface-aware' if args.surface_aware else ''}: {r['status']}, t = {r['time']:.2f} s, volume change "
                   f"{r['change']:+.3%}, drift {r['drift_per_s']:+.3%}/s, max speed {r['max_speed_end']:.2e} m/s, "
                   f"tilt {1000 * r['tilt_first_s']:.1f} -> {1000 * r['tilt_last_s']:.1f} mm")
         if args.out:
             with open(args.out, "w") as f:
-                json.dump({"alpha_rate": args.alpha_rate, "surface_aware": args.surface_aware, "results": results}, f, indent=2)
+                json.dump({"alpha": args.alpha, "surface_aware": args.surface_aware, "results": results}, f, indent=2)
     return 0
 
 

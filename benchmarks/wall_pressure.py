@@ -46,8 +46,8 @@ MAIN_PROBE = "right_y0.005"
 STUDY = [
     ("default", "default (2 × 2 per cell, dt 1e-3, α 0.1, affine-FLIP)", {}),
     ("ppc9", "3 × 3 particles per cell", {"bodies.0.particles_per_cell": 9}),
-    ("no_alpha", "no volume correction (α 0)", {"solver.volume_correction_rate": 0.0}),
-    ("ppc9_no_alpha", "3 × 3 per cell, α 0", {"bodies.0.particles_per_cell": 9, "solver.volume_correction_rate": 0.0}),
+    ("no_alpha", "no volume correction (α 0)", {"solver.volume_correction": 0.0}),
+    ("ppc9_no_alpha", "3 × 3 per cell, α 0", {"bodies.0.particles_per_cell": 9, "solver.volume_correction": 0.0}),
     ("dt", "dt 5e-4", {"time.dt": 5e-4}),
     ("fine", "80² cells", {"domain.cells": [80, 80]}),
     ("pic", "the seed's FLIP with 10 % PIC per step", {"solver.transfer": "flip", "solver.pic_blend": 0.1,

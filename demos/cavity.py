@@ -73,6 +73,7 @@ from fempm import output
 from fempm.bases import BASES
 from fempm.cases import cavity
 from fempm.errors import FempmError
+from fempm.options import Scheme
 from fempm.verification import over_bounds
 
 comm = MPI.COMM_WORLD
@@ -85,7 +86,7 @@ parser.add_argument("--fem-dt", type=float, default=cavity.FEM_DT, help=f"FEM-on
 parser.add_argument("--end-time", type=float, default=cavity.END_TIME, help="simulated time (default 15 L/U)")
 parser.add_argument("--window", type=float, default=cavity.WINDOW, help="the profiles' mean is over the last WINDOW")
 parser.add_argument("--method", choices=("both", "mpm", "fem"), default="both", help="which methods run")
-parser.add_argument("--alpha", type=float, default=cavity.ALPHA, help="MPM volume correction per step, 0..1")
+parser.add_argument("--alpha", type=float, default=Scheme.alpha, help="MPM volume correction, 0..1")
 parser.add_argument("--pic", type=float, default=cavity.PIC, help="MPM PIC share per step, 0..1")
 parser.add_argument("--out", type=Path, default=Path("results/cavity"), help="output folder")
 parser.add_argument("--quiet", action="store_true", help="no progress line")

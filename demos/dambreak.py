@@ -100,12 +100,11 @@ dambreak.add_flags(parser)
 flag = parser.add_argument
 flag("--dt", dest="time.dt", type=float, metavar="DT", help="time step, s, or its bound with --courant")
 flag("--courant", dest="time.courant", type=float, metavar="C", help="adaptive step: max |v| dt / h = C")
-flag("--alpha-rate", dest="solver.volume_correction_rate", type=float, metavar="RATE",
-     help="volume correction per second, 1/s: a share RATE dt per step (scene: 100)")
 flag("--alpha", dest="solver.volume_correction", type=float, metavar="ALPHA",
-     help="volume correction per step, 0..1, added to the rate's (scene: 0)")
-flag("--no-volume-correction", dest="solver.volume_correction_rate", action="store_const", const=0.0,
-     help="volume correction off (with the scene's alpha 0)")
+     help="volume correction, largest share per step (scene: 0.1)")
+flag("--alpha-rate", dest="solver.volume_correction_rate", type=float, metavar="RATE",
+     help="volume correction per second, 1/s: a share min(ALPHA, RATE dt) per step (scene: 100)")
+flag("--no-volume-correction", dest="solver.volume_correction", action="store_const", const=0.0)
 flag("--no-pspg", dest="solver.pspg", action="store_const", const=False, help="PSPG off (the run then fails)")
 flag("--transfer", dest="solver.transfer", choices=TRANSFERS, help="particle-grid transfer (scene: affine-flip)")
 flag("--pic-rate", dest="solver.pic_rate", type=float, metavar="RATE",

@@ -54,7 +54,7 @@ class EulerianSolver(Stepper):
         if not density > 0:
             raise InputError(f"density must be positive, got {density}")
         physics, controls = physics or Physics(), controls or Controls()
-        scheme = replace(scheme or Scheme(), alpha=0.0, alpha_rate=0.0)
+        scheme = replace(scheme or Scheme(), alpha=0.0)
         for part in (physics, scheme, controls):
             part.check()
         super().__init__(scheme.dt)

@@ -16,7 +16,7 @@ import numpy as np
 
 from fempm.errors import InputError
 
-__all__ = ["Controls", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS", "share_per_step"]
+__all__ = ["Controls", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
 
 SIDES = ("left", "right", "bottom", "top")
 #: The conditions a side may have (see :class:`Physics`).
@@ -93,11 +93,13 @@ class Scheme:
         dt: the time step; with ``courant``, the largest step.
         courant: an adaptive step ``dt = C h / max |v_p|`` with this C (None: the step is ``dt``).
         beta, gamma: Newmark parameters (1/4, 1/2: the trapezoidal rule).
-        alpha: volume-correction share per step, the alpha of method.md eq. (3), 0 to 1: its
-            correction per unit time grows as 1/dt, more as the step falls.
-        alpha_rate: volume-correction rate per unit time (1/s): the forms' alpha is
-            ``min(1, alpha + alpha_rate dt)`` (:func:`share_per_step`), a correction that does not
-            grow as dt falls: a density error decays as ``exp(-alpha_rate t)``. Both 0: left out.
+        alpha: the volume correction's largest share per step, the alpha of method.md eq. (3),
+            0 to 1 (0: left out).
+        alpha_rate: its rate per unit time (1/s): the forms' alpha is ``min(alpha, alpha_rate dt)``
+            (:meth:`volume_share`). A share alpha at every step corrects at a rate ``alpha / dt``
+            that grows as the step falls; below ``alpha / alpha_rate`` the share falls with the
+            step instead. Above it the share stays alpha: a larger one over-corrects (at 10 times
+            the seed's step a whole share per step fed the energy check).
         surface_aware: the volume correction's density error of both signs deep in the water,
             crowding only along a free surface (:mod:`fempm.density`); False: crowding only, everywhere.
         pspg: PSPG stabilisation (method.md: without it the run diverges).
@@ -121,7 +123,7 @@ class Scheme:
     courant: float | None = None
     beta: float = 0.25
     gamma: float = 0.5
-    alpha: float = 0.0
+    alpha: float = 0.1
     alpha_rate: float = 100.0
     surface_aware: bool = False
     pspg: bool = True
@@ -140,8 +142,8 @@ class Scheme:
             raise InputError(f"Newmark needs 0 < beta <= 1/2 and 0 < gamma <= 1, got {self.beta}, {self.gamma}")
         if not 0 <= self.alpha <= 1:
             raise InputError(f"alpha (volume correction) must be in [0, 1], got {self.alpha}")
-        if not (np.isfinite(self.alpha_rate) and self.alpha_rate >= 0):
-            raise InputError(f"alpha_rate (volume correction) must be a finite number >= 0 (1/s), got {self.alpha_rate}")
+        if not (np.isfinite(self.alpha_rate) and self.alpha_rate > 0):
+            raise InputError(f"alpha_rate (volume correction) must be a finite number > 0 (1/s), got {self.alpha_rate}")
         if not 0 <= self.pic_blend <= 1:
             raise InputError(f"pic_blend must be in [0, 1], got {self.pic_blend}")
         if self.transfer not in TRANSFERS:
@@ -151,12 +153,7 @@ class Scheme:
 
     def volume_share(self, dt: float) -> float:
         """The volume correction's share of a step of size ``dt``: the forms' ``alpha``."""
-        return share_per_step(self.alpha, self.alpha_rate, dt)
-
-
-def share_per_step(share: float, rate: float, dt: float) -> float:
-    """``min(1, share + rate dt)``: a relaxation given per step (``share``) and per unit time (``rate``)."""
-    return min(1.0, share + rate * dt)
+        return min(self.alpha, self.alpha_rate * dt)
 
 
 @dataclass

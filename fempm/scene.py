@@ -173,7 +173,7 @@ class Solver:
     linear: str = key(choice("direct", "iterative"), "direct")
     pspg: bool = key(boolean, True)
     volume_correction: float = key(fraction, Scheme.alpha)
-    volume_correction_rate: float = key(non_negative, Scheme.alpha_rate, unit="1/s")
+    volume_correction_rate: float = key(positive, Scheme.alpha_rate, unit="1/s")
     transfer: str = key(choice(*TRANSFERS), Scheme.transfer)
     surface_aware: bool = key(boolean, Scheme.surface_aware)
     pic_blend: float = key(fraction, Scheme.pic_blend)

@@ -29,7 +29,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fempm.assembly import jets_at_particles
-from fempm.options import TRANSFERS, share_per_step
+from fempm.options import TRANSFERS
 from fempm.space import GridFunction, Space
 
 __all__ = [
@@ -351,7 +351,7 @@ def pic_share(kind: str, pic_blend: float, pic_rate: float, dt: float) -> float:
     ``pic_rate dt`` damps at a rate of ``pic_rate`` times the share of a mode that one PIC
     transfer takes, independent of dt, and with affine parts that share falls fast with h.
     """
-    return 1.0 if kind in AFFINE_KINDS else share_per_step(pic_blend, pic_rate, dt)
+    return 1.0 if kind in AFFINE_KINDS else min(1.0, pic_blend + pic_rate * dt)
 
 
 def add_affine_fields(particles, kind: str):

@@ -98,7 +98,7 @@ def test_a_mistake_in_a_forms_file_is_one_message_naming_file_function_and_line(
     assert old in FORMS
     forms = tmp_path / "forms.py"
     forms.write_text(FORMS.replace(old, new, 1))
-    (tmp_path / "scene.toml").write_text(DAMBREAK.replace("volume_correction_rate = 100.0 ", "volume_correction_rate = 0.0 "))
+    (tmp_path / "scene.toml").write_text(DAMBREAK.replace("volume_correction = 0.1 ", "volume_correction = 0.0 "))
     err = _in_process(cli.main, ["check", str(tmp_path / "scene.toml"), "--forms", str(forms)], status=2)
     assert re.search(message, one_line(err)), err
 
@@ -117,7 +117,7 @@ def test_the_command_reports_a_forms_mistake_with_status_2_and_an_edited_switch_
     forms = tmp_path / "forms.py"
     forms.write_text(FORMS.replace("    return q * expansion * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"))
     scene = tmp_path / "scene.toml"
-    scene.write_text(DAMBREAK.replace("volume_correction_rate = 100.0 ", "volume_correction_rate = 0.0 "))
+    scene.write_text(DAMBREAK.replace("volume_correction = 0.1 ", "volume_correction = 0.0 "))
     status, out, err = fempm("check", scene, "--forms", forms)
     assert status == 2 and "ValueError: Dot product requires non-scalar arguments" in one_line(err)
     # the ordinary edit `mu = 1.0e4 * mu` before `if switched_on(mu)` compiles and runs

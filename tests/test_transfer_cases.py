@@ -36,10 +36,10 @@ def test_gresho_vortex_short():
     old = vortices.gresho("FLIP/PIC", 32, 0.0125, 0.25)
     print(new, old)
     assert new["status"] == old["status"] == "completed"
-    assert -0.020 < new["ke"] < 0  # measured -1.81 % (alpha 0.1 per step: -1.91 %; start-configuration divergence, alpha 0: -2.38 %)
+    assert -0.020 < new["ke"] < 0  # measured -1.91 % (start-configuration divergence, alpha 0: -2.38 %)
     assert old["ke"] < -0.085  # measured -8.81 % (before -9.18 %)
-    assert -0.0010 < new["L"] < 0  # measured -0.048 % (alpha 0.1 per step: -0.072 %; before +2.87 %)
-    assert new["profile"] < 0.052  # measured 5.06 % (alpha 0.1 per step 4.89 %; FLIP/PIC 6.56 %; before 6.29 %, 7.64 %)
+    assert -0.0010 < new["L"] < 0  # measured -0.072 % (before +2.87 %)
+    assert new["profile"] < 0.052  # measured 4.89 % (FLIP/PIC 6.56 %; before 6.29 %, 7.64 %)
 
 
 def test_column_stays_at_rest_with_affine_flip():

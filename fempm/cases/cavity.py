@@ -29,7 +29,7 @@ from fempm.options import Physics, Scheme
 from fempm.progress import Progress
 from fempm.verification import Measurement, Run, advance, filled_solver, max_relative_error, sample
 
-__all__ = ["COURANT", "DENSE", "END_TIME", "FEM_DT", "PIC", "ALPHA", "WINDOW", "CavityRun", "CentreLines", "Ghia",
+__all__ = ["COURANT", "DENSE", "END_TIME", "FEM_DT", "PIC", "WINDOW", "CavityRun", "CentreLines", "Ghia",
            "at_ghia_points", "cavity_solver", "courant_step", "errors", "load_ghia", "occupancy", "plot", "run_case",
            "split_lines", "write_results"]
 
@@ -77,8 +77,6 @@ PHYSICS = Physics(viscosity=DENSITY * KINEMATIC_VISCOSITY, gravity=(0.0, 0.0), w
 
 #: the MPM's PIC share per step (FLIP/PIC: see :func:`cavity_solver`)
 PIC = 0.1
-#: the MPM's volume correction, a share per step like its PIC share (the seed's scheme)
-ALPHA = 0.1
 
 def cavity_grid(cells: int, comm) -> Grid:
     """The unit cavity cut into ``cells`` x ``cells`` square cells."""
@@ -86,7 +84,7 @@ def cavity_grid(cells: int, comm) -> Grid:
 
 
 def cavity_solver(method: str, cells: int, basis: str, dt: float, per_cell: int = 2, comm=MPI.COMM_WORLD,
-                  alpha: float = ALPHA, pic: float = PIC):
+                  alpha: float = Scheme.alpha, pic: float = PIC):
     """The cavity at rest: the FEM-only reference, or the MPM with ``per_cell`` x ``per_cell``
     particles in every cell (:func:`fempm.verification.filled_solver`).
 
@@ -95,7 +93,7 @@ def cavity_solver(method: str, cells: int, basis: str, dt: float, per_cell: int 
     under which the particles opened a hole (0.17 % of the cells empty at 24 cells) and crowded
     a corner."""
     grid = cavity_grid(cells, comm)
-    scheme = Scheme(dt=dt, alpha=alpha, alpha_rate=0.0, transfer="flip", pic_blend=pic, pic_rate=0.0)
+    scheme = Scheme(dt=dt, alpha=alpha, transfer="flip", pic_blend=pic, pic_rate=0.0)
     return filled_solver(method, BASES[basis](grid), PHYSICS, scheme, density=DENSITY, per_cell=per_cell)
 
 
@@ -209,7 +207,7 @@ class CavityRun:
 
 
 def run_case(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, end_time: float = END_TIME,
-             window: float = WINDOW, alpha: float = ALPHA, pic: float = PIC,
+             window: float = WINDOW, alpha: float = Scheme.alpha, pic: float = PIC,
              comm=MPI.COMM_WORLD, progress: bool = False) -> CavityRun:
     """Run ``method`` (``"MPM"`` or ``"FEM-only"``) from rest to ``end_time`` and measure it.
 

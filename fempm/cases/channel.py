@@ -98,7 +98,7 @@ def channel(method: str, basis: str, cells: int, dt: float, per_cell: int = 2, *
     walls = {"left": "outflow", "right": "outflow", "bottom": "no-slip", "top": "no-slip"}
     physics = Physics(viscosity=density * viscosity, gravity=(body_force, 0.0), walls=walls,
                       wall_speeds={"top": lid_speed} if lid_speed else {}, recycle=method == "MPM")
-    scheme = Scheme(dt=dt, alpha=0.0, alpha_rate=0.0, transfer="flip", pic_blend=pic_blend, pic_rate=0.0)
+    scheme = Scheme(dt=dt, alpha=0.0, transfer="flip", pic_blend=pic_blend, pic_rate=0.0)
     return filled_solver(method, BASES[basis](grid), physics, scheme, density=density, per_cell=per_cell)
 
 

@@ -16,9 +16,9 @@ Both start from the exact velocity, its exact Lagrangian acceleration
 ``Du/Dt = -grad p / rho + nu lap u`` (the Newmark state: the exact pressure enters through it)
 and, with an affine transfer, the exact velocity and acceleration gradients. Taylor-Green runs
 without the volume correction, to measure the transfer's dissipation alone (the correction's
-expansion feeds energy in). Gresho runs the default scheme, correction included, at the rate
-:data:`GRESHO_ALPHA_RATE` of these units: over t = 3 the vortex's shear disorders the particles,
-and the crowding it leaves behind is what the correction undoes.
+expansion, a share alpha of the crowding per step, feeds energy in at a rate that grows as dt
+falls). Gresho runs the default scheme, correction included: over t = 3 the vortex's shear
+disorders the particles, and the crowding it leaves behind is what the correction undoes.
 """
 
 from __future__ import annotations
@@ -40,20 +40,17 @@ RHO = 1000.0  #: kg/m^3
 #: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
 VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0}, "affine-FLIP": {}}
 CENTRE = np.array([0.5, 0.5])
-#: the volume correction's rate in the vortices' units (U = L = 1; the default 100/s is the dam
-#: break's, whose time unit is ~0.1 of its flow's): a share 0.1 per step at 64 cells, U dt / h = 0.4
-GRESHO_ALPHA_RATE = 16.0
 
 
 def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
-               comm=MPI.COMM_WORLD, alpha_rate: float = GRESHO_ALPHA_RATE) -> ImplicitSolver:
+               comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha) -> ImplicitSolver:
     """The unit slip box filled with 2 x 2 particles per cell at the given velocity and acceleration
     (functions of the positions returning ``(values (n, 2), gradients (n, 2, 2))``), with the volume
-    correction at ``alpha_rate`` per unit time."""
+    correction ``alpha``."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
     water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=2, density=RHO)
-    scheme = Scheme(dt=dt, alpha_rate=alpha_rate, **VARIANTS[variant])
+    scheme = Scheme(dt=dt, alpha=alpha, **VARIANTS[variant])
     transfer.add_affine_fields(water, scheme.transfer)
     for name, field in (("velocity", velocity), ("acceleration", acceleration)):
         value, grad = field(water.x)
@@ -97,7 +94,7 @@ def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.
     Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``ke_end`` and ``exact_end`` (KE over its
     start), ``status``, ``cause``, ``t``, ``wall``.
     """
-    solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha_rate=0.0)
+    solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha=0.0)
     times, energy = [0.0], [kinetic_energy(solver.particles)]
 
     def each(s):
