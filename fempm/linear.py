@@ -226,25 +226,25 @@ class LinearSolver:
 
     def _solve_blocks(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None) -> PETSc.Vec:
         """:meth:`solve` with the field split's blocks and Schur complement cut from the grid matrix
-        (:class:`fempm.schur.FreeBlocks`; the same pattern as the last solve: only the values)."""
+        (:class:`fempm.schur.FreeBlocks`); while the free dofs stay inside the last blocks' padded
+        pattern (and the Schur complement's LU package stays) only the values are taken."""
         previous = self._previous
-        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
-        if same:
+        package = schur_factor_options(len(free)) if self.exact_schur else {}
+        if previous is not None and previous[0] is A and previous[2] == package and previous[3].covers(free):
             blocks = previous[3]
-            blocks.refill()
+            blocks.refill(free)
             self.reuses += 1
         else:
             self.ksp.reset()
             if previous is not None and isinstance(previous[3], FreeBlocks):
                 previous[3].destroy()
             blocks = FreeBlocks(A.getAttr("fempm_grid_matrix"), free, self.fields)
-            self._previous = (A, free.copy(), None, blocks)
-        self.ksp.setOperators(blocks.nest)
-        if not same:
+            self._previous = (A, free.copy(), package, blocks)
+            self.ksp.setOperators(blocks.nest)
             pc = self.ksp.getPC()
             pc.setFieldSplitIS(*blocks.index_sets)
             pc.setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, blocks.schur)
-        b_free = PETSc.Vec().createWithArray(b.getArray(readonly=True)[blocks.order], comm=PETSc.COMM_SELF)
+        b_free = PETSc.Vec().createWithArray(blocks.restrict(b.getArray(readonly=True)), comm=PETSc.COMM_SELF)
         x_free = b_free.duplicate()
         reason = self._ksp_solve(b_free, x_free, len(free))
         values = np.zeros(b.getLocalSize())
@@ -257,7 +257,7 @@ class LinearSolver:
             b.restoreSubVector(index_set, b_sub)
             values[free] = x_sub.getArray(readonly=True)
         else:
-            values[blocks.order] = x_free.getArray(readonly=True)
+            blocks.extend(x_free.getArray(readonly=True), values)
         _check(reason, values)
         if x is None:
             x = b.duplicate()

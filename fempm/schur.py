@@ -5,9 +5,14 @@ free dofs. PETSc would extract the free-dof block from the matrix, then the four
 split from that, and form the ``selfp`` complement ``S = A11 - A10 diag(A00)^-1 A01`` by a
 sparse product, all again whenever the free dofs change (nearly every step). Here the four blocks
 ``A00, A01, A10, A11`` (velocity dofs first, then pressure, each in increasing order) and ``S``
-are cut straight from the grid matrix's CSR arrays (:mod:`fempm.matrix`) in one pass each:
-the pattern (with where every entry comes from) when the free dofs change, only the values
-otherwise. The blocks form a PETSc ``MATNEST`` whose field split takes them as they are.
+are cut straight from the grid matrix's CSR arrays (:mod:`fempm.matrix`) in one pass each.
+
+The blocks' pattern is that of a *padded* set of dofs: those of the functions within
+:data:`PATTERN_MARGIN` functions of a free one. A dof of the pattern that is not free this step
+has an identity row and column (its solution is zero, and the free dofs' equations are those of
+the free block), so while the free dofs stay inside the pattern (the water moves a cell in
+several steps) a solve takes only new values, and the solver keeps its orderings and symbolic
+factorisations. The blocks form a PETSc ``MATNEST`` whose field split takes them as they are.
 """
 
 from __future__ import annotations
@@ -16,7 +21,12 @@ import numba
 import numpy as np
 from petsc4py import PETSc
 
-__all__ = ["FreeBlocks"]
+from fempm.region import dilate
+
+__all__ = ["PATTERN_MARGIN", "FreeBlocks"]
+
+#: Functions by which the blocks' pattern reaches beyond the free dofs' functions.
+PATTERN_MARGIN = 1
 
 
 @numba.njit(cache=True)
@@ -95,6 +105,21 @@ def _diagonal_positions(pointer, cols):
 
 
 @numba.njit(cache=True)
+def _masked_values(pointer, cols, source, row_free, col_free, square, grid_values, out):
+    """A block's values: the grid matrix's where row and column are free; elsewhere the identity
+    (``square``: a diagonal block) or zero."""
+    for i in range(pointer.shape[0] - 1):
+        for k in range(pointer[i], pointer[i + 1]):
+            c = cols[k]
+            if row_free[i] and col_free[c]:
+                out[k] = grid_values[source[k]]
+            elif square and c == i:
+                out[k] = 1.0
+            else:
+                out[k] = 0.0
+
+
+@numba.njit(cache=True)
 def _schur(p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal):
     """Pattern and values of ``A11 - A10 diag(A00)^-1 A01`` (``diagonal`` = diag(A00)), columns
     increasing within each row: one pass, the row's columns found by a scan of the range it touched."""
@@ -157,13 +182,24 @@ def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, di
             acc[cols[k]] = 0.0
 
 
+def _padded(free: np.ndarray, bs: int, nfx: int, nfy: int, indptr: np.ndarray) -> np.ndarray:
+    """The dofs (increasing) of the functions within :data:`PATTERN_MARGIN` of a free dof's function
+    (structured numbering: one rank) that have a row in the matrix."""
+    near = np.zeros(nfx * nfy, dtype=bool)
+    near[free // bs] = True
+    near = dilate(near.reshape(nfy, nfx), PATTERN_MARGIN).ravel()
+    dofs = (bs * np.flatnonzero(near)[:, None] + np.arange(bs)).ravel()
+    return dofs[indptr[dofs + 1] > indptr[dofs]]
+
+
 class FreeBlocks:
     """The free dofs of a grid matrix (one rank) as a 2 x 2 ``MATNEST`` of velocity and pressure
-    blocks, and the ``selfp`` Schur complement of its (1, 1) block.
+    blocks on a padded pattern (see the module's docstring), and the ``selfp`` Schur complement of
+    its (1, 1) block.
 
     Args:
         grid_matrix: the :class:`fempm.matrix.GridMatrix` behind the system.
-        free: the free dofs (global numbers, increasing).
+        free: the free dofs (global numbers, increasing) the pattern is padded around.
         fields: components per field of the interleaved dofs (two fields).
 
     Attributes:
@@ -175,26 +211,27 @@ class FreeBlocks:
 
     def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int]):
         self.grid_matrix = grid_matrix
-        lay = grid_matrix.layout
+        lay, space = grid_matrix.layout, grid_matrix.space
         names = list(fields)
         field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
-        field, position, rows0, rows1 = _numbering(np.asarray(free, dtype=np.int64), field_of_component,
-                                                   lay.num_owned_rows)
+        pattern = _padded(np.asarray(free, dtype=np.int64), space.bs, space.basis.nfx, space.basis.nfy, lay.indptr)
+        field, position, rows0, rows1 = _numbering(pattern, field_of_component, lay.num_owned_rows)
+        self._field = field
         self.order = np.concatenate([rows0, rows1])
+        self._sizes = (len(rows0), len(rows1))
+        self._free = np.zeros(len(self.order), dtype=np.bool_)  # per row of nest: free this solve
         rows = (rows0, rows1)
         self._blocks = {}
-        mats = [[None, None], [None, None]]
         for i in range(2):
             for j, (pointer, cols, source) in enumerate(_row_blocks(lay.indptr, lay.columns, rows[i], field, position)):
-                values = grid_matrix.values[source]
-                self._blocks[i, j] = (pointer, cols, source, values)
-                mats[i][j] = PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), (pointer, cols, values),
-                                                             comm=PETSc.COMM_SELF)
+                self._blocks[i, j] = (pointer, cols, source, np.empty(len(cols)))
         self._diagonal = _diagonal_positions(self._blocks[0, 0][0], self._blocks[0, 0][1])
         if np.any(self._diagonal < 0):
-            raise ValueError("a free velocity dof has no diagonal entry")
-        self.nest = PETSc.Mat().createNest(mats, comm=PETSc.COMM_SELF)
-        self._mats = mats
+            raise ValueError("a velocity dof has no diagonal entry")
+        self._fill_blocks(free)
+        self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
+                                                       comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
+        self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
         self._schur_pointer, self._schur_cols, self._schur_values = _schur(
             *self._block_arrays(1, 1), *self._block_arrays(1, 0), *self._block_arrays(0, 1),
             self._blocks[0, 0][3][self._diagonal])
@@ -204,23 +241,41 @@ class FreeBlocks:
         isets = self.nest.getNestISs()[0]
         self.index_sets = [(names[0], isets[0]), (names[1], isets[1])]
 
+    def covers(self, free: np.ndarray) -> bool:
+        """Whether every one of the ``free`` dofs is in the pattern."""
+        return bool(np.all(self._field[free] >= 0))
+
     def _block_arrays(self, i, j):
         pointer, cols, _, values = self._blocks[i, j]
         return pointer, cols, values
 
-    def _fill_schur(self):
+    def _fill_blocks(self, free: np.ndarray):
+        is_free = np.zeros(len(self._field), dtype=np.bool_)
+        is_free[free] = True
+        self._free = is_free[self.order]
+        n0 = self._sizes[0]
+        part = (self._free[:n0], self._free[n0:])
+        for (i, j), (pointer, cols, source, values) in self._blocks.items():
+            _masked_values(pointer, cols, source, part[i], part[j], i == j, self.grid_matrix.values, values)
+
+    def refill(self, free: np.ndarray):
+        """Take the grid matrix's current values for these ``free`` dofs (:meth:`covers` them)."""
+        self._fill_blocks(free)
+        for row in self._mats:
+            for m in row:
+                m.stateIncrease()
+        self.nest.stateIncrease()
         _schur_values(self._schur_pointer, self._schur_cols, *self._block_arrays(1, 1), *self._block_arrays(1, 0),
                       *self._block_arrays(0, 1), self._blocks[0, 0][3][self._diagonal], self._schur_values)
-
-    def refill(self):
-        """Take the grid matrix's current values (same pattern)."""
-        source_values = self.grid_matrix.values
-        for (i, j), (_, _, source, values) in self._blocks.items():
-            np.take(source_values, source, out=values)
-            self._mats[i][j].stateIncrease()
-        self.nest.stateIncrease()
-        self._fill_schur()
         self.schur.stateIncrease()
+
+    def restrict(self, vector: np.ndarray) -> np.ndarray:
+        """A vector by global dof in the rows of ``nest``, zero on the dofs not free."""
+        return np.where(self._free, vector[self.order], 0.0)
+
+    def extend(self, solution: np.ndarray, out: np.ndarray):
+        """The free rows of a solution in the rows of ``nest`` into ``out``, by global dof."""
+        out[self.order[self._free]] = solution[self._free]
 
     def destroy(self):
         for row in self._mats:
