@@ -347,6 +347,7 @@ class _Coefficients:
             self._parts.append((kind, name, offset, size, index))
             offset += size
         self.width = offset
+        self._nodal_positions, self._particle_slots = self._positions()
 
     def pack(self, particles, phi, lfun) -> np.ndarray:
         """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
@@ -364,25 +365,30 @@ class _Coefficients:
     def nodal_slots(self):
         """For lumped integrals: the grid functions' coefficients side by side, and where
         their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
-        columns, slot_pos, slot_col, zero_pos = [], [], [], []
-        column = 0
-        for kind, name, offset, _, index in self._parts:
-            if kind == "particle":
-                continue
-            gf = self.grid_functions[name]
-            slot_pos.extend(offset + index[:, 0])
-            slot_col.extend(column + np.arange(gf.space.bs))
-            zero_pos.extend(offset + index[:, 1:].ravel())
-            columns.append(gf.values)
-            column += gf.space.bs
+        columns = [self.grid_functions[name].values for kind, name, *_ in self._parts if kind != "particle"]
         G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
+        return (G, *self._nodal_positions)
+
+    def _positions(self):
+        """``slot_pos, slot_col, zero_pos`` of :meth:`nodal_slots` and the particle fields' slots: fixed
+        by the form, worked out once."""
+        slot_pos, slot_col, zero_pos, particle = [], [], [], []
+        column = 0
+        for kind, name, offset, size, index in self._parts:
+            if kind == "particle":
+                particle.extend(range(offset, offset + size))
+                continue
+            bs = self.grid_functions[name].space.bs
+            slot_pos.extend(offset + index[:, 0])
+            slot_col.extend(column + np.arange(bs))
+            zero_pos.extend(offset + index[:, 1:].ravel())
+            column += bs
         as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
-        return G, as_int(slot_pos), as_int(slot_col), as_int(zero_pos)
+        return (as_int(slot_pos), as_int(slot_col), as_int(zero_pos)), as_int(particle)
 
     def particle_slots(self) -> np.ndarray:
         """Positions of the particle fields in the packed coefficients."""
-        slots = [range(offset, offset + size) for kind, _, offset, size, _ in self._parts if kind == "particle"]
-        return np.asarray([i for r in slots for i in r], dtype=np.int64)
+        return self._particle_slots
 
 
 class ParticleForm:

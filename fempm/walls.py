@@ -175,7 +175,7 @@ class Walls:
 
     def _gather_state(self):
         ids = self._ids()
-        gather = lambda mask: sorted(int(i) for part in self.space.comm.allgather(ids[mask]) for i in part)  # noqa: E731
+        gather = lambda mask: np.sort(np.concatenate(self.space.comm.allgather(ids[mask]))).tolist()  # noqa: E731
         self._state = {"walls_released": gather(~self.active), "walls_dry": gather(~self.wet)}
 
     def contact_state(self) -> dict:
