@@ -364,7 +364,7 @@ class Particles:
         self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
         if self.grid.comm.size > 1:
             self.fields = exchange(self.fields, self.grid.owner[self.cell], self.grid.comm)
-        self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
+            self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
         order = np.lexsort((self.id, self.cell))
         self._take(order)
         self.cache.clear()

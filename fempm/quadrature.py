@@ -462,7 +462,7 @@ class ParticleForm:
         self._packing = _Coefficients(coefficients, symbols.used, self.grid_functions, target.jet_cell,
                                       {n: tuple(v) for n, v in symbols._particle_shapes.items()})
 
-    def _function_sums(self, phi, lfun, weight, coeffs) -> np.ndarray:
+    def _function_sums(self, phi0, lfun, weight, coeffs) -> np.ndarray:
         """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks."""
         slots = self._packing.particle_slots()
         if self._nodal_sums is None:
@@ -470,13 +470,17 @@ class ParticleForm:
         sums = self._nodal_sums
         sums.array[:] = 0.0
         table = sums.array.reshape(-1, 1 + len(slots))
-        assembly.nodal_sums(np.ascontiguousarray(phi[:, 0, :]), lfun, weight, coeffs, slots, table)
+        assembly.nodal_sums(phi0, lfun, weight, coeffs, slots, table)
         sums.scatter_reverse(dolfinx.la.InsertMode.add)
         return table
 
     def particle_shape(self, name: str) -> tuple[int, ...]:
         """Value shape of a particle field the form uses."""
         return tuple(self.symbols._particle_shapes[name])
+
+    def _basis_values(self, particles) -> np.ndarray:
+        """``N_l(x_p)``, ``(n, (k+1)^2)`` contiguous (the space keeps it for the step)."""
+        return self.space.tabulate_particles(particles, 0)[0][:, 0, :]
 
     def _particle_data(self, particles):
         phi, lfun = self.space.tabulate_particles(particles, self.order)
@@ -505,7 +509,7 @@ class ParticleForm:
             )
         target.mark_written(lfun)
         if _LUMPED in self._kernels and self._lumped_affine:
-            sums = self._function_sums(phi, lfun, weight, coeffs)
+            sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs)
             target.mark_written(np.flatnonzero(sums[: self.space.numbering.num_owned, 0] > 0.0))  # other ranks' too
             assembly.assemble_matrix_nodal_affine(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
@@ -515,7 +519,7 @@ class ParticleForm:
         elif _LUMPED in self._kernels:
             assembly.assemble_matrix_lumped(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
-                np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(),
+                self._basis_values(particles), lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(),
                 self._lumped_per_function,
             )
         return target.finalize()
@@ -534,14 +538,15 @@ class ParticleForm:
                 coeffs, consts, self._perm, h,
             )
         if _LUMPED in self._kernels and self._lumped_affine:
+            sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs)
             assembly.assemble_vector_nodal_affine(
-                self._kernels[_LUMPED], b.array, self._function_sums(phi, lfun, weight, coeffs),
+                self._kernels[_LUMPED], b.array, sums,
                 self.space.numbering.num_owned, self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h,
                 self._packing.nodal_slots(),
             )
         elif _LUMPED in self._kernels:
             assembly.assemble_vector_lumped(
-                self._kernels[_LUMPED], b.array, particles.x, weight, np.ascontiguousarray(phi[:, 0, :]),
+                self._kernels[_LUMPED], b.array, particles.x, weight, self._basis_values(particles),
                 lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(), self._lumped_per_function,
             )
         b.scatter_reverse(dolfinx.la.InsertMode.add)

@@ -174,8 +174,9 @@ class Walls:
         return functions * self.space.bs + self.normal % self.space.bs
 
     def _gather_state(self):
-        ids = self._ids()
-        gather = lambda mask: np.sort(np.concatenate(self.space.comm.allgather(ids[mask]))).tolist()  # noqa: E731
+        ids, comm = self._ids(), self.space.comm
+        gather = lambda mask: np.sort(np.concatenate(comm.allgather(ids[mask]) if comm.size > 1  # noqa: E731
+                                                     else [ids[mask]])).tolist()
         self._state = {"walls_released": gather(~self.active), "walls_dry": gather(~self.wet)}
 
     def contact_state(self) -> dict:
