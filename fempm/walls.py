@@ -73,6 +73,7 @@ class Walls:
         self.released = 0
         self._state = {}
         self.stops = 0
+        self._held_for = None  # the active set the held dofs were made for
         self._set_held()
 
     def _contact_of(self, owned: np.ndarray):
@@ -104,7 +105,11 @@ class Walls:
         self.wet = np.zeros(len(self.normal), dtype=bool)  # material in the function's support last step
 
     def _set_held(self):
-        """:attr:`dofs`, :attr:`values`, :attr:`positions`: the fixed dofs and the active contact dofs."""
+        """:attr:`dofs`, :attr:`values`, :attr:`positions`: the fixed dofs and the active contact dofs
+        (kept when the active set is that of the last call, as it mostly is from one step to the next)."""
+        if self._held_for is not None and np.array_equal(self._held_for, self.active):
+            return
+        self._held_for = self.active.copy()
         partners = self.partner[self.active]
         contact = np.concatenate([self.normal[self.active], partners[partners >= 0]])
         dofs = np.concatenate([self._fixed, self._owned[contact]])
