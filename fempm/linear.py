@@ -151,8 +151,9 @@ class LinearSolver:
                             and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
                             and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
-        # one rank, a selfp Schur split of two fields: the blocks and S cut from a grid matrix (fempm.schur)
-        self.cuts_blocks = (comm.size == 1 and len(self.fields) == 2
+        # one rank, a selfp Schur split of a velocity and a pressure: the blocks and S cut from a grid
+        # matrix (fempm.schur)
+        self.cuts_blocks = (comm.size == 1 and list(self.fields.values()) == [2, 1]
                             and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
                             and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
                             and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"

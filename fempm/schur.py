@@ -166,17 +166,26 @@ def _schur(p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal):
 
 @numba.njit(cache=True)
 def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal, out):
-    """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern, summed as :func:`_schur` does."""
+    """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern, summed as :func:`_schur` does.
+
+    The velocity dofs come in pairs (the two components of a function, both in the pattern or
+    neither): a row of ``A10`` holds both of a pair, side by side, and their rows of ``A01`` have
+    the same columns, so a pair is taken in one pass over those columns (each sum is added to in
+    the same order as one dof at a time)."""
     n = pointer.shape[0] - 1
     acc = np.zeros(n)
     for i in range(n):
         for k in range(p11[i], p11[i + 1]):
             acc[c11[k]] += v11[k]
-        for k in range(p10[i], p10[i + 1]):
+        for k in range(p10[i], p10[i + 1], 2):
             m = c10[k]
-            s = v10[k] / diagonal[m]
+            s0 = v10[k] / diagonal[m]
+            s1 = v10[k + 1] / diagonal[m + 1]
+            second = p01[m + 1] - p01[m]  # from the first dof's row to the second's
             for q in range(p01[m], p01[m + 1]):
-                acc[c01[q]] -= s * v01[q]
+                j = c01[q]
+                acc[j] -= s0 * v01[q]
+                acc[j] -= s1 * v01[q + second]
         for k in range(pointer[i], pointer[i + 1]):
             out[k] = acc[cols[k]]
             acc[cols[k]] = 0.0
@@ -200,7 +209,7 @@ class FreeBlocks:
     Args:
         grid_matrix: the :class:`fempm.matrix.GridMatrix` behind the system.
         free: the free dofs (global numbers, increasing) the pattern is padded around.
-        fields: components per field of the interleaved dofs (two fields).
+        fields: components per field of the interleaved dofs: a velocity of two, then one more.
 
     Attributes:
         nest: the PETSc ``MATNEST`` ``[[A00, A01], [A10, A11]]``.
@@ -213,6 +222,8 @@ class FreeBlocks:
         self.grid_matrix = grid_matrix
         lay, space = grid_matrix.layout, grid_matrix.space
         names = list(fields)
+        if len(fields) != 2 or fields[names[0]] != 2:
+            raise ValueError(f"the blocks need a two-component field and another, not {fields}")
         field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
         pattern = _padded(np.asarray(free, dtype=np.int64), space.bs, space.basis.nfx, space.basis.nfy, lay.indptr)
         field, position, rows0, rows1 = _numbering(pattern, field_of_component, lay.num_owned_rows)
