@@ -358,8 +358,10 @@ class _Coefficients:
         for kind, name, offset, size, index in self._parts:
             if kind == "particle":
                 out[:, offset: offset + size] = particles[name].reshape(n, size)
-            else:
+            elif self.grid_functions[name].vector.array.any():
                 assembly.pack_jets(phi, lfun, self.grid_functions[name].values, index, offset, out)
+            else:  # a function that is zero (U at the start of a step between walls at rest): zero jets
+                out[:, offset: offset + size] = 0.0
         return out
 
     def nodal_slots(self):
