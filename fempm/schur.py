@@ -120,53 +120,45 @@ def _masked_values(pointer, cols, source, row_free, col_free, square, grid_value
 
 
 @numba.njit(cache=True)
-def _schur(p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal):
-    """Pattern and values of ``A11 - A10 diag(A00)^-1 A01`` (``diagonal`` = diag(A00)), columns
-    increasing within each row: one pass, the row's columns found by a scan of the range it touched."""
+def _schur_pattern(p11, c11, p10, c10, p01, c01):
+    """Pattern of ``A11 - A10 diag(A00)^-1 A01``, columns increasing within each row: the row's
+    columns found by a scan of the range it touched; a velocity pair's second dof (see
+    :func:`_schur_values`) adds no column its first did not."""
     n = p11.shape[0] - 1
     mark = np.full(n, -1, dtype=np.int64)
-    acc = np.zeros(n)
     pointer = np.zeros(n + 1, dtype=np.int32)
     capacity = max(16, 4 * p11[n])
     cols = np.empty(capacity, dtype=np.int32)
-    values = np.empty(capacity)
     for i in range(n):
         lo, hi = n, -1
         for k in range(p11[i], p11[i + 1]):
             j = c11[k]
-            if mark[j] != i:
-                mark[j] = i
-                lo, hi = min(lo, j), max(hi, j)
-            acc[j] += v11[k]
-        for k in range(p10[i], p10[i + 1]):
+            mark[j] = i
+            lo, hi = min(lo, j), max(hi, j)
+        for k in range(p10[i], p10[i + 1], 2):
             m = c10[k]
-            s = v10[k] / diagonal[m]
             for q in range(p01[m], p01[m + 1]):
                 j = c01[q]
-                if mark[j] != i:
-                    mark[j] = i
-                    lo, hi = min(lo, j), max(hi, j)
-                acc[j] -= s * v01[q]
+                mark[j] = i
+                lo, hi = min(lo, j), max(hi, j)
         start = pointer[i]
         if start + (hi - lo + 1) > capacity:
             capacity = max(2 * capacity, start + hi - lo + 1)
-            grown_cols, grown_values = np.empty(capacity, dtype=np.int32), np.empty(capacity)
-            grown_cols[:start], grown_values[:start] = cols[:start], values[:start]
-            cols, values = grown_cols, grown_values
+            grown = np.empty(capacity, dtype=np.int32)
+            grown[:start] = cols[:start]
+            cols = grown
         k = start
         for j in range(lo, hi + 1):
             if mark[j] == i:
                 cols[k] = j
-                values[k] = acc[j]
-                acc[j] = 0.0
                 k += 1
         pointer[i + 1] = k
-    return pointer, cols[: pointer[n]].copy(), values[: pointer[n]].copy()
+    return pointer, cols[: pointer[n]].copy()
 
 
 @numba.njit(cache=True)
 def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal, out):
-    """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern, summed as :func:`_schur` does.
+    """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern (:func:`_schur_pattern`).
 
     The velocity dofs come in pairs (the two components of a function, both in the pattern or
     neither): a row of ``A10`` holds both of a pair, side by side, and their rows of ``A01`` have
@@ -243,9 +235,10 @@ class FreeBlocks:
         self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
                                                        comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
         self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
-        self._schur_pointer, self._schur_cols, self._schur_values = _schur(
-            *self._block_arrays(1, 1), *self._block_arrays(1, 0), *self._block_arrays(0, 1),
-            self._blocks[0, 0][3][self._diagonal])
+        pointers_and_columns = [self._blocks[i, j][:2] for i, j in ((1, 1), (1, 0), (0, 1))]
+        self._schur_pointer, self._schur_cols = _schur_pattern(*[a for pc in pointers_and_columns for a in pc])
+        self._schur_values = np.empty(len(self._schur_cols))
+        self._fill_schur()
         n1 = len(rows1)
         self.schur = PETSc.Mat().createAIJWithArrays(
             (n1, n1), (self._schur_pointer, self._schur_cols, self._schur_values), comm=PETSc.COMM_SELF)
@@ -276,9 +269,12 @@ class FreeBlocks:
             for m in row:
                 m.stateIncrease()
         self.nest.stateIncrease()
+        self._fill_schur()
+        self.schur.stateIncrease()
+
+    def _fill_schur(self):
         _schur_values(self._schur_pointer, self._schur_cols, *self._block_arrays(1, 1), *self._block_arrays(1, 0),
                       *self._block_arrays(0, 1), self._blocks[0, 0][3][self._diagonal], self._schur_values)
-        self.schur.stateIncrease()
 
     def restrict(self, vector: np.ndarray) -> np.ndarray:
         """A vector by global dof in the rows of ``nest``, zero on the dofs not free."""
