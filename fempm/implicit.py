@@ -165,15 +165,17 @@ class ImplicitSolver(Stepper):
         return self.grid.h
 
     def clock_state(self) -> dict:
-        """The clock's, the energy watch's start and lowest energy, and the walls' active set."""
+        """The clock's, the energy watch's start and lowest energy, the walls' active set, and the
+        pattern the linear solver keeps (:meth:`fempm.linear.LinearSolver.pattern_seed`)."""
         watch = self.check_energy
         return {**super().clock_state(), "energy": [watch.start, watch.lowest] if watch else None,
-                **self.walls.contact_state()}
+                **self.walls.contact_state(), "solve_pattern": self.system.linear_solver.pattern_seed()}
 
     def restore_clock(self, state: dict):
         """Continue from a :meth:`clock_state`."""
         super().restore_clock(state)
         self.walls.restore_contact(state)
+        self.system.linear_solver.restore_pattern(state.get("solve_pattern"))
         if self.check_energy and state.get("energy"):
             self.check_energy.start, self.check_energy.lowest = state["energy"]
 

@@ -160,6 +160,7 @@ class LinearSolver:
                             and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
         self._fallback = None
         self._previous = None  # (matrix, free dofs, their index set, the block) of the last solve
+        self._restored_seed = None  # a resumed run's blocks' seed, for the first solve (pattern_seed)
         self.reuses = 0  # solves that kept the last one's pattern
 
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None = None) -> PETSc.Vec:
@@ -225,6 +226,22 @@ class LinearSolver:
                 opts.delValue(self.prefix + name)
         return self.ksp.getConvergedReason()
 
+    def pattern_seed(self) -> list[list[int]] | None:
+        """The free dofs the kept blocks' pattern was padded around (:mod:`fempm.schur`), as runs
+        ``[first, stop)`` (a checkpoint's), or None (no blocks): what :meth:`restore_pattern` takes."""
+        previous = self._previous
+        if previous is None or not isinstance(previous[3], FreeBlocks):
+            return None
+        seed = previous[3].seed
+        starts = np.flatnonzero(np.diff(seed, prepend=-2) != 1)
+        stops = np.append(starts[1:], len(seed))
+        return [[int(seed[a]), int(seed[b - 1]) + 1] for a, b in zip(starts, stops)]
+
+    def restore_pattern(self, seed: list[list[int]] | None):
+        """Solve as a run whose blocks had this :meth:`pattern_seed` (a resumed run, bit for bit)."""
+        runs = seed or []
+        self._restored_seed = np.concatenate([np.arange(a, b) for a, b in runs]) if runs else None
+
     def _solve_blocks(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None) -> PETSc.Vec:
         """:meth:`solve` with the field split's blocks and Schur complement cut from the grid matrix
         (:class:`fempm.schur.FreeBlocks`); while the free dofs stay inside the last blocks' padded
@@ -239,7 +256,7 @@ class LinearSolver:
             self.ksp.reset()
             if previous is not None and isinstance(previous[3], FreeBlocks):
                 previous[3].destroy()
-            blocks = FreeBlocks(A.getAttr("fempm_grid_matrix"), free, self.fields)
+            blocks = self._new_blocks(A.getAttr("fempm_grid_matrix"), free, package)
             self._previous = (A, free.copy(), package, blocks)
             self.ksp.setOperators(blocks.nest)
             pc = self.ksp.getPC()
@@ -264,6 +281,18 @@ class LinearSolver:
             x = b.duplicate()
         x.setArray(values)
         return x
+
+    def _new_blocks(self, grid_matrix, free: np.ndarray, package: dict) -> FreeBlocks:
+        """Blocks for ``free``: padded around a restored seed if that serves them as the run it came
+        from kept it (the seed's package, the free dofs inside), else around ``free``."""
+        seed, self._restored_seed = self._restored_seed, None
+        if seed is not None and (schur_factor_options(len(seed)) if self.exact_schur else {}) == package:
+            blocks = FreeBlocks(grid_matrix, seed, self.fields)
+            if blocks.covers(free):
+                blocks.refill(free)
+                return blocks
+            blocks.destroy()
+        return FreeBlocks(grid_matrix, free, self.fields)
 
     def _solve_by_lu(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> int:
         """Solve by MUMPS LU (:data:`DIRECT`, set here, not from the options); its converged reason."""

@@ -8,11 +8,15 @@ sparse product, all again whenever the free dofs change (nearly every step). Her
 are cut straight from the grid matrix's CSR arrays (:mod:`fempm.matrix`) in one pass each.
 
 The blocks' pattern is that of a *padded* set of dofs: those of the functions within
-:data:`PATTERN_MARGIN` functions of a free one. A dof of the pattern that is not free this step
-has an identity row and column (its solution is zero, and the free dofs' equations are those of
-the free block), so while the free dofs stay inside the pattern (the water moves a cell in
-several steps) a solve takes only new values, and the solver keeps its orderings and symbolic
-factorisations. The blocks form a PETSc ``MATNEST`` whose field split takes them as they are.
+:data:`PATTERN_MARGIN` functions of a free one (the *seed*). A dof of the pattern that is not free
+this step has an identity row and column (its solution is zero, and the free dofs' equations are
+those of the free block), so while the free dofs stay inside the pattern (the water moves a cell
+in several steps) a solve takes only new values, and the solver keeps its orderings and symbolic
+factorisations. The pattern is a function of the seed alone, so a run resumed with its seed
+(:meth:`fempm.linear.LinearSolver.pattern_seed`) solves as the uninterrupted run did; that needs
+every function's row in the matrix: a matrix with rows only near the water (a region that
+depends on when it was made) gets no padding, its pattern the free dofs themselves. The blocks
+form a PETSc ``MATNEST`` whose field split takes them as they are.
 """
 
 from __future__ import annotations
@@ -183,14 +187,13 @@ def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, di
             acc[cols[k]] = 0.0
 
 
-def _padded(free: np.ndarray, bs: int, nfx: int, nfy: int, indptr: np.ndarray) -> np.ndarray:
+def _padded(free: np.ndarray, bs: int, nfx: int, nfy: int) -> np.ndarray:
     """The dofs (increasing) of the functions within :data:`PATTERN_MARGIN` of a free dof's function
-    (structured numbering: one rank) that have a row in the matrix."""
+    (structured numbering: one rank)."""
     near = np.zeros(nfx * nfy, dtype=bool)
     near[free // bs] = True
     near = dilate(near.reshape(nfy, nfx), PATTERN_MARGIN).ravel()
-    dofs = (bs * np.flatnonzero(near)[:, None] + np.arange(bs)).ravel()
-    return dofs[indptr[dofs + 1] > indptr[dofs]]
+    return (bs * np.flatnonzero(near)[:, None] + np.arange(bs)).ravel()
 
 
 class FreeBlocks:
@@ -200,7 +203,7 @@ class FreeBlocks:
 
     Args:
         grid_matrix: the :class:`fempm.matrix.GridMatrix` behind the system.
-        free: the free dofs (global numbers, increasing) the pattern is padded around.
+        seed: the free dofs (global numbers, increasing) the pattern is padded around.
         fields: components per field of the interleaved dofs: a velocity of two, then one more.
 
     Attributes:
@@ -208,16 +211,18 @@ class FreeBlocks:
         schur: ``A11 - A10 diag(A00)^-1 A01`` (AIJ).
         order: the global dof of every row of ``nest`` (the first field's dofs, then the second's).
         index_sets: the rows of each field in ``nest`` (named as ``fields``).
+        seed: as given.
     """
 
-    def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int]):
-        self.grid_matrix = grid_matrix
+    def __init__(self, grid_matrix, seed: np.ndarray, fields: dict[str, int]):
+        self.grid_matrix, self.seed = grid_matrix, np.asarray(seed, dtype=np.int64)
         lay, space = grid_matrix.layout, grid_matrix.space
+        self._padded = lay.region is None  # every function has its row
         names = list(fields)
         if len(fields) != 2 or fields[names[0]] != 2:
             raise ValueError(f"the blocks need a two-component field and another, not {fields}")
         field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
-        pattern = _padded(np.asarray(free, dtype=np.int64), space.bs, space.basis.nfx, space.basis.nfy, lay.indptr)
+        pattern = _padded(self.seed, space.bs, space.basis.nfx, space.basis.nfy) if self._padded else self.seed
         field, position, rows0, rows1 = _numbering(pattern, field_of_component, lay.num_owned_rows)
         self._field = field
         self.order = np.concatenate([rows0, rows1])
@@ -231,7 +236,7 @@ class FreeBlocks:
         self._diagonal = _diagonal_positions(self._blocks[0, 0][0], self._blocks[0, 0][1])
         if np.any(self._diagonal < 0):
             raise ValueError("a velocity dof has no diagonal entry")
-        self._fill_blocks(free)
+        self._fill_blocks(self.seed)
         self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
                                                        comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
         self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
@@ -246,8 +251,9 @@ class FreeBlocks:
         self.index_sets = [(names[0], isets[0]), (names[1], isets[1])]
 
     def covers(self, free: np.ndarray) -> bool:
-        """Whether every one of the ``free`` dofs is in the pattern."""
-        return bool(np.all(self._field[free] >= 0))
+        """Whether these ``free`` dofs are solved on the pattern as they would be on their own one:
+        all of them in it (padded), or the seed itself (not padded)."""
+        return bool(np.all(self._field[free] >= 0)) if self._padded else np.array_equal(free, self.seed)
 
     def _block_arrays(self, i, j):
         pointer, cols, _, values = self._blocks[i, j]

@@ -1,5 +1,6 @@
 """The exact solve's padded block pattern (fempm.schur): free dofs inside the last pattern keep it,
-and the solution is that of a solver that cuts the blocks for these free dofs alone."""
+and the solution is that of a solver that cuts the blocks for these free dofs alone; a resumed run
+gets the pattern back."""
 
 from pathlib import Path
 
@@ -7,7 +8,9 @@ import numpy as np
 from mpi4py import MPI
 
 from fempm import linear
+from fempm.region import MatrixRegion
 from fempm.scene import load_scene
+from fempm.schur import FreeBlocks
 from fempm.simulation import build_solver
 
 SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
@@ -31,3 +34,28 @@ def test_fewer_free_dofs_keep_the_pattern():
     assert np.linalg.norm(x - fresh) <= 1e-12 * np.linalg.norm(fresh)  # measured 0 (the same padded pattern)
     lu = linear.LinearSolver(comm, "fempm_lu_", options=linear.DIRECT).solve(A, b, fewer).getArray()
     assert np.linalg.norm(x - lu) <= 1e-12 * np.linalg.norm(lu)  # measured 5e-16
+
+
+def test_a_resumed_run_solves_on_the_kept_pattern():
+    """The pattern's seed, as a checkpoint keeps it, makes a new solver solve bit for bit as the one
+    that kept the pattern; a matrix with rows only near the water gets no padding."""
+    comm = MPI.COMM_SELF
+    solver = build_solver(load_scene(SCENE), comm)
+    solver.step()
+    ls = solver.system.linear_solver
+    A, free = solver.region.matrix, ls._previous[1]
+    b = A.createVecLeft()
+    b.setArray(np.random.default_rng(4).standard_normal(b.getLocalSize()))
+    fewer = free[free // 3 != free[-1] // 3]  # the last free function held: a pattern of its own would differ
+    kept = ls.solve(A, b, fewer).getArray().copy()
+    seed = ls.pattern_seed()
+    resumed = linear.LinearSolver(comm, "fempm_", fields=solver.system.space.fields)
+    resumed.restore_pattern(seed)
+    assert np.array_equal(resumed.solve(A, b, fewer).getArray(), kept)
+    assert resumed.pattern_seed() == seed and resumed.reuses == 0
+    own = FreeBlocks(A.getAttr("fempm_grid_matrix"), fewer, solver.system.space.fields)
+    assert len(own.order) < len(resumed._previous[3].order)  # without the seed: another pattern
+    near_water = MatrixRegion(solver.system.space, "fluid", solver.particles).matrix
+    solver.forms.jacobian.assemble_matrix(solver.particles, near_water)
+    blocks = FreeBlocks(near_water.getAttr("fempm_grid_matrix"), free, solver.system.space.fields)
+    assert len(blocks.order) == len(free) and blocks.covers(free) and not blocks.covers(fewer)
