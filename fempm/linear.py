@@ -159,16 +159,18 @@ class LinearSolver:
                             and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
                             and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
         self._fallback = None
-        self._previous = None  # (matrix, free dofs, their index set, the block) of the last solve
-        self._restored_seed = None  # a resumed run's blocks' seed, for the first solve (pattern_seed)
+        # the last solve's (matrix, free dofs, their index set or the Schur LU's package, the block or blocks)
+        self._previous = None
+        self._restored_seed = None  # a resumed run's blocks' seed, for its first solve (pattern_seed)
         self.reuses = 0  # solves that kept the last one's pattern
 
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None = None) -> PETSc.Vec:
         """Solve ``A[free, free] x[free] = b[free]``; ``x`` is zero on the other dofs.
 
-        When ``A`` and ``free`` are those of the last solve (the values may differ), the block is
-        extracted into the last one's storage and the solver keeps what depends on the pattern
-        only (the orderings, symbolic factorisations and products).
+        When ``A`` and ``free`` are those of the last solve (the values may differ), or with the
+        field split's blocks (:mod:`fempm.schur`) ``free`` lies inside the last solve's padded
+        pattern, the block is extracted into the last one's storage and the solver keeps what
+        depends on the pattern only (the orderings, symbolic factorisations and products).
 
         Args:
             A, b: the assembled system (global numbering).
@@ -254,9 +256,12 @@ class LinearSolver:
             self.reuses += 1
         else:
             self.ksp.reset()
+            seed, self._restored_seed = self._restored_seed, None  # a resumed run's, for its first solve
             if previous is not None and isinstance(previous[3], FreeBlocks):
+                if previous[0] is not A:  # another matrix (rows near the water, widened): the same pattern
+                    seed = previous[3].seed
                 previous[3].destroy()
-            blocks = self._new_blocks(A.getAttr("fempm_grid_matrix"), free, package)
+            blocks = self._new_blocks(A.getAttr("fempm_grid_matrix"), free, package, seed)
             self._previous = (A, free.copy(), package, blocks)
             self.ksp.setOperators(blocks.nest)
             pc = self.ksp.getPC()
@@ -282,14 +287,13 @@ class LinearSolver:
         x.setArray(values)
         return x
 
-    def _new_blocks(self, grid_matrix, free: np.ndarray, package: dict) -> FreeBlocks:
-        """Blocks for ``free``: padded around a restored seed if that serves them as the run it came
-        from kept it (the seed's package, the free dofs inside), else around ``free``."""
-        seed, self._restored_seed = self._restored_seed, None
+    def _new_blocks(self, grid_matrix, free: np.ndarray, package: dict, seed: np.ndarray | None) -> FreeBlocks:
+        """Blocks for ``free``: padded around ``seed`` (a resumed run's, or the last blocks' on another
+        matrix) if those would have been kept (the seed's package, the free dofs inside), else
+        around ``free``."""
         if seed is not None and (schur_factor_options(len(seed)) if self.exact_schur else {}) == package:
-            blocks = FreeBlocks(grid_matrix, seed, self.fields)
+            blocks = FreeBlocks(grid_matrix, free, self.fields, seed)
             if blocks.covers(free):
-                blocks.refill(free)
                 return blocks
             blocks.destroy()
         return FreeBlocks(grid_matrix, free, self.fields)

@@ -12,11 +12,10 @@ The blocks' pattern is that of a *padded* set of dofs: those of the functions wi
 this step has an identity row and column (its solution is zero, and the free dofs' equations are
 those of the free block), so while the free dofs stay inside the pattern (the water moves a cell
 in several steps) a solve takes only new values, and the solver keeps its orderings and symbolic
-factorisations. The pattern is a function of the seed alone, so a run resumed with its seed
-(:meth:`fempm.linear.LinearSolver.pattern_seed`) solves as the uninterrupted run did; that needs
-every function's row in the matrix: a matrix with rows only near the water (a region that
-depends on when it was made) gets no padding, its pattern the free dofs themselves. The blocks
-form a PETSc ``MATNEST`` whose field split takes them as they are.
+factorisations. The pattern is a function of the seed alone (the dofs of the functions, not the rows the matrix
+happens to store), so a run resumed with its seed (:meth:`fempm.linear.LinearSolver.pattern_seed`),
+or one whose matrix has rows only near the water, solves as the uninterrupted run on the whole
+grid does. The blocks form a PETSc ``MATNEST`` whose field split takes them as they are.
 """
 
 from __future__ import annotations
@@ -57,43 +56,42 @@ def _numbering(free, field_of_component, num_dofs):
 
 
 @numba.njit(cache=True)
-def _row_blocks(indptr, columns, rows, field, position):
-    """CSR patterns of the two blocks of ``rows`` (free columns of field 0, of field 1): row
-    pointers, columns (block numbering, increasing as the grid matrix's are) and every entry's
-    place in the grid matrix's values."""
+def _row_blocks(indptr, stencil, nfx, nfy, bs, rows, field, position):
+    """CSR patterns of the two blocks of ``rows``: the pattern's dofs (``field`` >= 0) among those of
+    the functions in the stencil of the row's function, by field; row pointers, columns (block
+    numbering, increasing as the grid matrix's are) and every entry's place in the grid matrix's
+    values (-1 in a row the matrix does not store: rows only near the water). The pattern follows
+    from the functions alone, whichever rows the matrix stores."""
     n = rows.shape[0]
-    pointer0 = np.zeros(n + 1, dtype=np.int32)
-    pointer1 = np.zeros(n + 1, dtype=np.int32)
+    width = int(np.sqrt(stencil.shape[1]) + 0.5)
+    k = (width - 1) // 2
+    capacity = n * width * width * bs
+    pointer = np.zeros((2, n + 1), dtype=np.int32)
+    cols = np.empty((2, capacity), dtype=np.int32)
+    source = np.empty((2, capacity), dtype=np.int64)
+    count = np.zeros(2, dtype=np.int64)
     for i in range(n):
         r = rows[i]
-        c0 = c1 = 0
-        for e in range(indptr[r], indptr[r + 1]):
-            f = field[columns[e]]
-            if f == 0:
-                c0 += 1
-            elif f == 1:
-                c1 += 1
-        pointer0[i + 1] = pointer0[i] + c0
-        pointer1[i + 1] = pointer1[i] + c1
-    cols0 = np.empty(pointer0[n], dtype=np.int32)
-    cols1 = np.empty(pointer1[n], dtype=np.int32)
-    source0 = np.empty(pointer0[n], dtype=np.int64)
-    source1 = np.empty(pointer1[n], dtype=np.int64)
-    for i in range(n):
-        r = rows[i]
-        k0, k1 = pointer0[i], pointer1[i]
-        for e in range(indptr[r], indptr[r + 1]):
-            c = columns[e]
-            f = field[c]
-            if f == 0:
-                cols0[k0] = position[c]
-                source0[k0] = e
-                k0 += 1
-            elif f == 1:
-                cols1[k1] = position[c]
-                source1[k1] = e
-                k1 += 1
-    return (pointer0, cols0, source0), (pointer1, cols1, source1)
+        f = r // bs
+        fi, fj = f % nfx, f // nfx
+        stored = indptr[r + 1] > indptr[r]
+        for dj in range(-k, k + 1):
+            for di in range(-k, k + 1):
+                gi, gj = fi + di, fj + dj
+                if gi < 0 or gi >= nfx or gj < 0 or gj >= nfy:
+                    continue
+                for D in range(bs):
+                    c = bs * (gi + nfx * gj) + D
+                    b = field[c]
+                    if b < 0:
+                        continue
+                    cols[b, count[b]] = position[c]
+                    source[b, count[b]] = indptr[r] + bs * stencil[f, (di + k) + width * (dj + k)] + D if stored else -1
+                    count[b] += 1
+        pointer[0, i + 1] = count[0]
+        pointer[1, i + 1] = count[1]
+    return ((pointer[0].copy(), cols[0, : count[0]].copy(), source[0, : count[0]].copy()),
+            (pointer[1].copy(), cols[1, : count[1]].copy(), source[1, : count[1]].copy()))
 
 
 @numba.njit(cache=True)
@@ -203,8 +201,9 @@ class FreeBlocks:
 
     Args:
         grid_matrix: the :class:`fempm.matrix.GridMatrix` behind the system.
-        seed: the free dofs (global numbers, increasing) the pattern is padded around.
+        free: the free dofs (global numbers, increasing) whose values the blocks take.
         fields: components per field of the interleaved dofs: a velocity of two, then one more.
+        seed: the free dofs the pattern is padded around (default ``free``).
 
     Attributes:
         nest: the PETSc ``MATNEST`` ``[[A00, A01], [A10, A11]]``.
@@ -214,15 +213,14 @@ class FreeBlocks:
         seed: as given.
     """
 
-    def __init__(self, grid_matrix, seed: np.ndarray, fields: dict[str, int]):
-        self.grid_matrix, self.seed = grid_matrix, np.asarray(seed, dtype=np.int64)
+    def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int], seed: np.ndarray | None = None):
+        self.grid_matrix, self.seed = grid_matrix, np.asarray(free if seed is None else seed, dtype=np.int64)
         lay, space = grid_matrix.layout, grid_matrix.space
-        self._padded = lay.region is None  # every function has its row
         names = list(fields)
         if len(fields) != 2 or fields[names[0]] != 2:
             raise ValueError(f"the blocks need a two-component field and another, not {fields}")
         field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
-        pattern = _padded(self.seed, space.bs, space.basis.nfx, space.basis.nfy) if self._padded else self.seed
+        pattern = _padded(self.seed, space.bs, space.basis.nfx, space.basis.nfy)
         field, position, rows0, rows1 = _numbering(pattern, field_of_component, lay.num_owned_rows)
         self._field = field
         self.order = np.concatenate([rows0, rows1])
@@ -231,12 +229,14 @@ class FreeBlocks:
         rows = (rows0, rows1)
         self._blocks = {}
         for i in range(2):
-            for j, (pointer, cols, source) in enumerate(_row_blocks(lay.indptr, lay.columns, rows[i], field, position)):
+            cut = _row_blocks(lay.indptr, lay.stencil, space.basis.nfx, space.basis.nfy, space.bs, rows[i], field,
+                              position)
+            for j, (pointer, cols, source) in enumerate(cut):
                 self._blocks[i, j] = (pointer, cols, source, np.empty(len(cols)))
         self._diagonal = _diagonal_positions(self._blocks[0, 0][0], self._blocks[0, 0][1])
         if np.any(self._diagonal < 0):
             raise ValueError("a velocity dof has no diagonal entry")
-        self._fill_blocks(self.seed)
+        self._fill_blocks(free)
         self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
                                                        comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
         self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
@@ -251,9 +251,8 @@ class FreeBlocks:
         self.index_sets = [(names[0], isets[0]), (names[1], isets[1])]
 
     def covers(self, free: np.ndarray) -> bool:
-        """Whether these ``free`` dofs are solved on the pattern as they would be on their own one:
-        all of them in it (padded), or the seed itself (not padded)."""
-        return bool(np.all(self._field[free] >= 0)) if self._padded else np.array_equal(free, self.seed)
+        """Whether every one of the ``free`` dofs is in the pattern."""
+        return bool(np.all(self._field[free] >= 0))
 
     def _block_arrays(self, i, j):
         pointer, cols, _, values = self._blocks[i, j]
