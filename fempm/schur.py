@@ -12,10 +12,11 @@ The blocks' pattern is that of a *padded* set of dofs: those of the functions wi
 this step has an identity row and column (its solution is zero, and the free dofs' equations are
 those of the free block), so while the free dofs stay inside the pattern (the water moves a cell
 in several steps) a solve takes only new values, and the solver keeps its orderings and symbolic
-factorisations. The pattern is a function of the seed alone (the dofs of the functions, not the rows the matrix
-happens to store), so a run resumed with its seed (:meth:`fempm.linear.LinearSolver.pattern_seed`),
-or one whose matrix has rows only near the water, solves as the uninterrupted run on the whole
-grid does. The blocks form a PETSc ``MATNEST`` whose field split takes them as they are.
+factorisations. The pattern is a function of the seed alone (the dofs of the functions, not the
+rows the matrix happens to store), so a run resumed with its seed
+(:meth:`fempm.linear.LinearSolver.pattern_seed`), or one whose matrix has rows only near the
+water, solves as the uninterrupted run on the whole grid does. The blocks form a PETSc
+``MATNEST`` whose field split takes them as they are.
 """
 
 from __future__ import annotations
@@ -225,7 +226,6 @@ class FreeBlocks:
         self._field = field
         self.order = np.concatenate([rows0, rows1])
         self._sizes = (len(rows0), len(rows1))
-        self._free = np.zeros(len(self.order), dtype=np.bool_)  # per row of nest: free this solve
         rows = (rows0, rows1)
         self._blocks = {}
         for i in range(2):
@@ -261,7 +261,7 @@ class FreeBlocks:
     def _fill_blocks(self, free: np.ndarray):
         is_free = np.zeros(len(self._field), dtype=np.bool_)
         is_free[free] = True
-        self._free = is_free[self.order]
+        self._free = is_free[self.order]  # per row of nest: free in this solve
         n0 = self._sizes[0]
         part = (self._free[:n0], self._free[n0:])
         for (i, j), (pointer, cols, source, values) in self._blocks.items():
