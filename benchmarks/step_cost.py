@@ -75,7 +75,7 @@ def worker(cells: int, warm: int, steps: int, petsc: dict) -> dict:
            **phases, "rest": cpu * per - sum(phases.values())}
     for name, evs in events.items():
         out[name] = (sum(e.getPerfInfo()["time"] for e in evs) - before[name]) * per
-    out["free dofs"] = solver.system.linear_solver.ksp.getOperators()[0].getSize()[0]
+    out["free dofs"] = int(solver.grid.comm.allreduce(solver.system.free.mask.sum()))
     out["pattern kept"] = getattr(solver.system.linear_solver, "reuses", 0)
     return out
 

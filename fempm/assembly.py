@@ -46,47 +46,42 @@ def _jet_cell(x, h, coords):
 
 
 @numba.njit(cache=True, fastmath=True)
-def _add_particle(K, comp, jet, w, phi_p, T, slot, pairs, Ae):
+def _add_particle(K, comp, jet, w, phi_p, T, rows, Ae):
     """``Ae += w * phi_p^T K phi_p``, visiting only the non-zero entries of ``K``.
 
-    ``comp[i], jet[i]``: component and jet of kernel dof ``i``. For each (C, a, D) that has a
-    non-zero entry, ``T[q, :] = sum_b K[(C, a), (D, b)] phi_p[b, :]`` (``q = slot[(C, a, D)]``,
-    in the order of first appearance, listed in ``pairs``), then
-    ``Ae[C, :, D, :] += phi_p[a, :] (x) T[q, :]``. ``slot`` is -1 on entry and on return.
+    ``comp[i], jet[i]``: component and jet of kernel dof ``i``. For each kernel row ``(C, a)`` that
+    has a non-zero entry, ``T[g, D nl + m] = w sum_b K[(C, a), (D, b)] phi_p[b, m]`` over all ``D``
+    at once (``g`` in the order of first appearance, its row in ``rows``), then
+    ``Ae[C, l, :] += phi_p[a, l] T[g, :]``: ``Ae`` seen as ``(bs, nl, bs nl)``, a row of ``bs nl``
+    contiguous entries per ``(C, l)`` (the inner loop vectorises).
     """
     nk = comp.shape[0]
-    nq = phi_p.shape[0]
     nl = phi_p.shape[1]
-    bs = Ae.shape[0]
+    width = T.shape[1]
     count = 0
     for i in range(nk):
-        C, a = comp[i], jet[i]
+        g = -1
         for j in range(nk):
             k = K[i * nk + j]
             if k != 0.0:
-                D, b = comp[j], jet[j]
-                pid = (C * nq + a) * bs + D
-                q = slot[pid]
-                if q < 0:
-                    q = count
-                    slot[pid] = q
-                    pairs[q] = pid
+                if g < 0:
+                    g = count
+                    rows[g] = i
                     count += 1
-                    for m in range(nl):
-                        T[q, m] = 0.0
+                    for e in range(width):
+                        T[g, e] = 0.0
                 k *= w
+                base = comp[j] * nl
+                b = jet[j]
                 for m in range(nl):
-                    T[q, m] += k * phi_p[b, m]
-    for q in range(count):
-        pid = pairs[q]
-        slot[pid] = -1
-        D = pid % bs
-        a = (pid // bs) % nq
-        C = pid // (bs * nq)
+                    T[g, base + m] += k * phi_p[b, m]
+    for g in range(count):
+        i = rows[g]
+        C, a = comp[i], jet[i]
         for l in range(nl):
             f = phi_p[a, l]
-            for m in range(nl):
-                Ae[C, l, D, m] += f * T[q, m]
+            for e in range(width):
+                Ae[C, l, e] += f * T[g, e]
 
 
 @numba.njit(cache=True)
@@ -103,8 +98,9 @@ def _dof_jets(perm):
 
 
 @numba.njit(cache=True)
-def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil):
-    """Add the element matrix of one cell into the CSR values (see fempm.matrix)."""
+def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
+    """Add the element matrix of one cell into the CSR values (see fempm.matrix); ``offsets``: room
+    for the column offsets of one row's functions."""
     bs, nl = Ae.shape[0], Ae.shape[1]
     k = k1 - 1
     width = 2 * k + 1
@@ -112,9 +108,11 @@ def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil):
         f = lfun_p[l]
         la, lb = l % k1, l // k1
         for m in range(nl):
-            s = stencil[f, (m % k1 - la + k) + width * (m // k1 - lb + k)]
-            for C in range(bs):
-                base = indptr[bs * f + C] + bs * s
+            offsets[m] = bs * stencil[f, (m % k1 - la + k) + width * (m // k1 - lb + k)]
+        for C in range(bs):
+            row = indptr[bs * f + C]
+            for m in range(nl):
+                base = row + offsets[m]
                 for D in range(bs):
                     values[base + D] += Ae[C, l, D, m]
 
@@ -129,17 +127,18 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     k1 = int(np.sqrt(nl) + 0.5)
     K = np.zeros(nk * nk)
     comp, jet = _dof_jets(perm)
-    T = np.zeros((bs * nq * bs, nl))
-    slot = np.full(bs * nq * bs, -1, dtype=np.int64)
-    pairs = np.empty(bs * nq * bs, dtype=np.int64)
+    T = np.zeros((nk, bs * nl))
+    rows = np.empty(nk, dtype=np.int64)
     Ae = np.zeros((bs, nl, bs, nl))
+    Ae_rows = Ae.reshape(bs, nl, bs * nl)
+    offsets = np.empty(nl, dtype=np.int64)
     coords = np.zeros(12)
     cur = -1
     for p in range(n + 1):
         c = cell[p] if p < n else -1
         if c != cur:
             if cur >= 0:
-                _add_to_csr(Ae, lfun[p - 1], k1, values, indptr, stencil)
+                _add_to_csr(Ae, lfun[p - 1], k1, values, indptr, stencil, offsets)
             if p == n:
                 break
             Ae[:] = 0.0
@@ -147,7 +146,7 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
         K[:] = 0.0
         _jet_cell(x[p], h, coords)
         kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        _add_particle(K, comp, jet, weight[p], phi[p], T, slot, pairs, Ae)
+        _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae_rows)
     return 0
 
 

@@ -120,11 +120,13 @@ class Basis:
         Shape ``(n, (k+1)^2)``, local number ``a + (k+1) * b``.
         """
         cells = np.asarray(cells, dtype=np.int64)
+        return (cells % self.grid.nx + self.nfx * (cells // self.grid.nx))[:, None] + self._cell_offsets
+
+    @cached_property
+    def _cell_offsets(self) -> np.ndarray:
+        """``a + nfx * b`` of local function ``a + (k+1) * b``: its number less its cell's first."""
         k1 = self.degree + 1
-        i, j = cells % self.grid.nx, cells // self.grid.nx
-        a = np.tile(np.arange(k1), k1)
-        b = np.repeat(np.arange(k1), k1)
-        return (i[:, None] + a) + self.nfx * (j[:, None] + b)
+        return np.tile(np.arange(k1), k1) + self.nfx * np.repeat(np.arange(k1), k1)
 
     def tabulate(self, cells, xi, order: int = 1) -> np.ndarray:
         """Jets of the cell functions at points given by cell and reference coordinates.

@@ -69,6 +69,7 @@ class ImplicitSolver(Stepper):
         s = self.system
         self.forms = StepForms(scheme.forms, lambda builder: ParticleForm(
             builder, s.space, particle_shapes=particles, grid_functions=s.fields, constants=s.constants))
+        self._jet_order = max(self.forms.residual.order, self.forms.jacobian.order)  # the jets the forms read
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
@@ -83,6 +84,7 @@ class ImplicitSolver(Stepper):
         """One step of size ``dt``: P2G, Newton, G2P, relocation."""
         self.system.set_step(dt)
         with self.timings("project"):
+            self.system.space.tabulate_particles(self.particles, self._jet_order)  # one for P2G, forms, G2P
             free = self.project()
         self.system.solve(self.forms, free, self.region.matrix, self.particles)
         if self.walls.one_sided:  # one-sided walls: the next step's held set (fempm.walls)
@@ -163,15 +165,17 @@ class ImplicitSolver(Stepper):
         return self.grid.h
 
     def clock_state(self) -> dict:
-        """The clock's, the energy watch's start and lowest energy, and the walls' active set."""
+        """The clock's, the energy watch's start and lowest energy, the walls' active set, and the
+        pattern the linear solver keeps (:meth:`fempm.linear.LinearSolver.pattern_seed`)."""
         watch = self.check_energy
         return {**super().clock_state(), "energy": [watch.start, watch.lowest] if watch else None,
-                **self.walls.contact_state()}
+                **self.walls.contact_state(), "solve_pattern": self.system.linear_solver.pattern_seed()}
 
     def restore_clock(self, state: dict):
         """Continue from a :meth:`clock_state`."""
         super().restore_clock(state)
         self.walls.restore_contact(state)
+        self.system.linear_solver.restore_pattern(state.get("solve_pattern"))
         if self.check_energy and state.get("energy"):
             self.check_energy.start, self.check_energy.lowest = state["energy"]
 

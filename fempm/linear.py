@@ -151,22 +151,26 @@ class LinearSolver:
                             and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
                             and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
-        # one rank, a selfp Schur split of two fields: the blocks and S cut from a grid matrix (fempm.schur)
-        self.cuts_blocks = (comm.size == 1 and len(self.fields) == 2
+        # one rank, a selfp Schur split of a velocity and a pressure: the blocks and S cut from a grid
+        # matrix (fempm.schur)
+        self.cuts_blocks = (comm.size == 1 and list(self.fields.values()) == [2, 1]
                             and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
                             and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
                             and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
                             and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
         self._fallback = None
-        self._previous = None  # (matrix, free dofs, their index set, the block) of the last solve
+        # the last solve's (matrix, free dofs, their index set or the Schur LU's package, the block or blocks)
+        self._previous = None
+        self._restored_seed = None  # a resumed run's blocks' seed, for its first solve (pattern_seed)
         self.reuses = 0  # solves that kept the last one's pattern
 
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None = None) -> PETSc.Vec:
         """Solve ``A[free, free] x[free] = b[free]``; ``x`` is zero on the other dofs.
 
-        When ``A`` and ``free`` are those of the last solve (the values may differ), the block is
-        extracted into the last one's storage and the solver keeps what depends on the pattern
-        only (the orderings, symbolic factorisations and products).
+        When ``A`` and ``free`` are those of the last solve (the values may differ), or with the
+        field split's blocks (:mod:`fempm.schur`) ``free`` lies inside the last solve's padded
+        pattern, the block is extracted into the last one's storage and the solver keeps what
+        depends on the pattern only (the orderings, symbolic factorisations and products).
 
         Args:
             A, b: the assembled system (global numbering).
@@ -224,27 +228,46 @@ class LinearSolver:
                 opts.delValue(self.prefix + name)
         return self.ksp.getConvergedReason()
 
+    def pattern_seed(self) -> list[list[int]] | None:
+        """The free dofs the kept blocks' pattern was padded around (:mod:`fempm.schur`), as runs
+        ``[first, stop)`` (a checkpoint's), or None (no blocks): what :meth:`restore_pattern` takes."""
+        previous = self._previous
+        if previous is None or not isinstance(previous[3], FreeBlocks):
+            return None
+        seed = previous[3].seed
+        starts = np.flatnonzero(np.diff(seed, prepend=-2) != 1)
+        stops = np.append(starts[1:], len(seed))
+        return [[int(seed[a]), int(seed[b - 1]) + 1] for a, b in zip(starts, stops)]
+
+    def restore_pattern(self, seed: list[list[int]] | None):
+        """Solve as a run whose blocks had this :meth:`pattern_seed` (a resumed run, bit for bit)."""
+        runs = seed or []
+        self._restored_seed = np.concatenate([np.arange(a, b) for a, b in runs]) if runs else None
+
     def _solve_blocks(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None) -> PETSc.Vec:
         """:meth:`solve` with the field split's blocks and Schur complement cut from the grid matrix
-        (:class:`fempm.schur.FreeBlocks`; the same pattern as the last solve: only the values)."""
+        (:class:`fempm.schur.FreeBlocks`); while the free dofs stay inside the last blocks' padded
+        pattern (and the Schur complement's LU package stays) only the values are taken."""
         previous = self._previous
-        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
-        if same:
+        package = schur_factor_options(len(free)) if self.exact_schur else {}
+        if previous is not None and previous[0] is A and previous[2] == package and previous[3].covers(free):
             blocks = previous[3]
-            blocks.refill()
+            blocks.refill(free)
             self.reuses += 1
         else:
             self.ksp.reset()
+            seed, self._restored_seed = self._restored_seed, None  # a resumed run's, for its first solve
             if previous is not None and isinstance(previous[3], FreeBlocks):
+                if previous[0] is not A:  # another matrix (rows near the water, widened): the same pattern
+                    seed = previous[3].seed
                 previous[3].destroy()
-            blocks = FreeBlocks(A.getAttr("fempm_grid_matrix"), free, self.fields)
-            self._previous = (A, free.copy(), None, blocks)
-        self.ksp.setOperators(blocks.nest)
-        if not same:
+            blocks = self._new_blocks(A.getAttr("fempm_grid_matrix"), free, package, seed)
+            self._previous = (A, free.copy(), package, blocks)
+            self.ksp.setOperators(blocks.nest)
             pc = self.ksp.getPC()
             pc.setFieldSplitIS(*blocks.index_sets)
             pc.setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, blocks.schur)
-        b_free = PETSc.Vec().createWithArray(b.getArray(readonly=True)[blocks.order], comm=PETSc.COMM_SELF)
+        b_free = PETSc.Vec().createWithArray(blocks.restrict(b.getArray(readonly=True)), comm=PETSc.COMM_SELF)
         x_free = b_free.duplicate()
         reason = self._ksp_solve(b_free, x_free, len(free))
         values = np.zeros(b.getLocalSize())
@@ -257,12 +280,23 @@ class LinearSolver:
             b.restoreSubVector(index_set, b_sub)
             values[free] = x_sub.getArray(readonly=True)
         else:
-            values[blocks.order] = x_free.getArray(readonly=True)
+            blocks.extend(x_free.getArray(readonly=True), values)
         _check(reason, values)
         if x is None:
             x = b.duplicate()
         x.setArray(values)
         return x
+
+    def _new_blocks(self, grid_matrix, free: np.ndarray, package: dict, seed: np.ndarray | None) -> FreeBlocks:
+        """Blocks for ``free``: padded around ``seed`` (a resumed run's, or the last blocks' on another
+        matrix) if those would have been kept (the seed's package, the free dofs inside), else
+        around ``free``."""
+        if seed is not None and (schur_factor_options(len(seed)) if self.exact_schur else {}) == package:
+            blocks = FreeBlocks(grid_matrix, free, self.fields, seed)
+            if blocks.covers(free):
+                return blocks
+            blocks.destroy()
+        return FreeBlocks(grid_matrix, free, self.fields)
 
     def _solve_by_lu(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> int:
         """Solve by MUMPS LU (:data:`DIRECT`, set here, not from the options); its converged reason."""

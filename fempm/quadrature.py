@@ -59,7 +59,9 @@ __all__ = ["GaussForm", "ParticleForm", "Symbols"]
 
 FormBuilder = Callable[["Symbols"], ufl.Form]
 
-_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2"]}
+# the kernels are compiled on the machine that runs them: its vector instructions, but no fused
+# multiply-adds (-ffp-contract=off), so the kernels' numbers are those of a plain -O2 build
+_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2", "-march=native", "-ffp-contract=off"]}
 _REGULAR, _LUMPED = 0, 1  # subdomain ids of s.dx and s.dx_lumped on the jet cell
 _KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
 _ffi = FFI()
@@ -345,6 +347,7 @@ class _Coefficients:
             self._parts.append((kind, name, offset, size, index))
             offset += size
         self.width = offset
+        self._nodal_positions, self._particle_slots = self._positions()
 
     def pack(self, particles, phi, lfun) -> np.ndarray:
         """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
@@ -355,32 +358,39 @@ class _Coefficients:
         for kind, name, offset, size, index in self._parts:
             if kind == "particle":
                 out[:, offset: offset + size] = particles[name].reshape(n, size)
-            else:
+            elif self.grid_functions[name].vector.array.any():
                 assembly.pack_jets(phi, lfun, self.grid_functions[name].values, index, offset, out)
+            else:  # a function that is zero (U at the start of a step between walls at rest): zero jets
+                out[:, offset: offset + size] = 0.0
         return out
 
     def nodal_slots(self):
         """For lumped integrals: the grid functions' coefficients side by side, and where
         their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
-        columns, slot_pos, slot_col, zero_pos = [], [], [], []
-        column = 0
-        for kind, name, offset, _, index in self._parts:
-            if kind == "particle":
-                continue
-            gf = self.grid_functions[name]
-            slot_pos.extend(offset + index[:, 0])
-            slot_col.extend(column + np.arange(gf.space.bs))
-            zero_pos.extend(offset + index[:, 1:].ravel())
-            columns.append(gf.values)
-            column += gf.space.bs
+        columns = [self.grid_functions[name].values for kind, name, *_ in self._parts if kind != "particle"]
         G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
+        return (G, *self._nodal_positions)
+
+    def _positions(self):
+        """``slot_pos, slot_col, zero_pos`` of :meth:`nodal_slots` and the particle fields' slots: fixed
+        by the form, worked out once."""
+        slot_pos, slot_col, zero_pos, particle = [], [], [], []
+        column = 0
+        for kind, name, offset, size, index in self._parts:
+            if kind == "particle":
+                particle.extend(range(offset, offset + size))
+                continue
+            bs = self.grid_functions[name].space.bs
+            slot_pos.extend(offset + index[:, 0])
+            slot_col.extend(column + np.arange(bs))
+            zero_pos.extend(offset + index[:, 1:].ravel())
+            column += bs
         as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
-        return G, as_int(slot_pos), as_int(slot_col), as_int(zero_pos)
+        return (as_int(slot_pos), as_int(slot_col), as_int(zero_pos)), as_int(particle)
 
     def particle_slots(self) -> np.ndarray:
         """Positions of the particle fields in the packed coefficients."""
-        slots = [range(offset, offset + size) for kind, _, offset, size, _ in self._parts if kind == "particle"]
-        return np.asarray([i for r in slots for i in r], dtype=np.int64)
+        return self._particle_slots
 
 
 class ParticleForm:
@@ -454,7 +464,7 @@ class ParticleForm:
         self._packing = _Coefficients(coefficients, symbols.used, self.grid_functions, target.jet_cell,
                                       {n: tuple(v) for n, v in symbols._particle_shapes.items()})
 
-    def _function_sums(self, phi, lfun, weight, coeffs) -> np.ndarray:
+    def _function_sums(self, phi0, lfun, weight, coeffs) -> np.ndarray:
         """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks."""
         slots = self._packing.particle_slots()
         if self._nodal_sums is None:
@@ -462,13 +472,17 @@ class ParticleForm:
         sums = self._nodal_sums
         sums.array[:] = 0.0
         table = sums.array.reshape(-1, 1 + len(slots))
-        assembly.nodal_sums(np.ascontiguousarray(phi[:, 0, :]), lfun, weight, coeffs, slots, table)
+        assembly.nodal_sums(phi0, lfun, weight, coeffs, slots, table)
         sums.scatter_reverse(dolfinx.la.InsertMode.add)
         return table
 
     def particle_shape(self, name: str) -> tuple[int, ...]:
         """Value shape of a particle field the form uses."""
         return tuple(self.symbols._particle_shapes[name])
+
+    def _basis_values(self, particles) -> np.ndarray:
+        """``N_l(x_p)``, ``(n, (k+1)^2)`` contiguous (the space keeps it for the step)."""
+        return self.space.tabulate_particles(particles, 0)[0][:, 0, :]
 
     def _particle_data(self, particles):
         phi, lfun = self.space.tabulate_particles(particles, self.order)
@@ -497,7 +511,7 @@ class ParticleForm:
             )
         target.mark_written(lfun)
         if _LUMPED in self._kernels and self._lumped_affine:
-            sums = self._function_sums(phi, lfun, weight, coeffs)
+            sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs)
             target.mark_written(np.flatnonzero(sums[: self.space.numbering.num_owned, 0] > 0.0))  # other ranks' too
             assembly.assemble_matrix_nodal_affine(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
@@ -507,7 +521,7 @@ class ParticleForm:
         elif _LUMPED in self._kernels:
             assembly.assemble_matrix_lumped(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
-                np.ascontiguousarray(phi[:, 0, :]), lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(),
+                self._basis_values(particles), lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(),
                 self._lumped_per_function,
             )
         return target.finalize()
@@ -526,14 +540,15 @@ class ParticleForm:
                 coeffs, consts, self._perm, h,
             )
         if _LUMPED in self._kernels and self._lumped_affine:
+            sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs)
             assembly.assemble_vector_nodal_affine(
-                self._kernels[_LUMPED], b.array, self._function_sums(phi, lfun, weight, coeffs),
+                self._kernels[_LUMPED], b.array, sums,
                 self.space.numbering.num_owned, self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h,
                 self._packing.nodal_slots(),
             )
         elif _LUMPED in self._kernels:
             assembly.assemble_vector_lumped(
-                self._kernels[_LUMPED], b.array, particles.x, weight, np.ascontiguousarray(phi[:, 0, :]),
+                self._kernels[_LUMPED], b.array, particles.x, weight, self._basis_values(particles),
                 lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(), self._lumped_per_function,
             )
         b.scatter_reverse(dolfinx.la.InsertMode.add)

@@ -5,9 +5,18 @@ free dofs. PETSc would extract the free-dof block from the matrix, then the four
 split from that, and form the ``selfp`` complement ``S = A11 - A10 diag(A00)^-1 A01`` by a
 sparse product, all again whenever the free dofs change (nearly every step). Here the four blocks
 ``A00, A01, A10, A11`` (velocity dofs first, then pressure, each in increasing order) and ``S``
-are cut straight from the grid matrix's CSR arrays (:mod:`fempm.matrix`) in one pass each:
-the pattern (with where every entry comes from) when the free dofs change, only the values
-otherwise. The blocks form a PETSc ``MATNEST`` whose field split takes them as they are.
+are cut straight from the grid matrix's CSR arrays (:mod:`fempm.matrix`) in one pass each.
+
+The blocks' pattern is that of a *padded* set of dofs: those of the functions within
+:data:`PATTERN_MARGIN` functions of a free one (the *seed*). A dof of the pattern that is not free
+this step has an identity row and column (its solution is zero, and the free dofs' equations are
+those of the free block), so while the free dofs stay inside the pattern (the water moves a cell
+in several steps) a solve takes only new values, and the solver keeps its orderings and symbolic
+factorisations. The pattern is a function of the seed alone (the dofs of the functions, not the
+rows the matrix happens to store), so a run resumed with its seed
+(:meth:`fempm.linear.LinearSolver.pattern_seed`), or one whose matrix has rows only near the
+water, solves as the uninterrupted run on the whole grid does. The blocks form a PETSc
+``MATNEST`` whose field split takes them as they are.
 """
 
 from __future__ import annotations
@@ -16,7 +25,12 @@ import numba
 import numpy as np
 from petsc4py import PETSc
 
-__all__ = ["FreeBlocks"]
+from fempm.region import dilate
+
+__all__ = ["PATTERN_MARGIN", "FreeBlocks"]
+
+#: Functions by which the blocks' pattern reaches beyond the free dofs' functions.
+PATTERN_MARGIN = 1
 
 
 @numba.njit(cache=True)
@@ -43,43 +57,42 @@ def _numbering(free, field_of_component, num_dofs):
 
 
 @numba.njit(cache=True)
-def _row_blocks(indptr, columns, rows, field, position):
-    """CSR patterns of the two blocks of ``rows`` (free columns of field 0, of field 1): row
-    pointers, columns (block numbering, increasing as the grid matrix's are) and every entry's
-    place in the grid matrix's values."""
+def _row_blocks(indptr, stencil, nfx, nfy, bs, rows, field, position):
+    """CSR patterns of the two blocks of ``rows``: the pattern's dofs (``field`` >= 0) among those of
+    the functions in the stencil of the row's function, by field; row pointers, columns (block
+    numbering, increasing as the grid matrix's are) and every entry's place in the grid matrix's
+    values (-1 in a row the matrix does not store: rows only near the water). The pattern follows
+    from the functions alone, whichever rows the matrix stores."""
     n = rows.shape[0]
-    pointer0 = np.zeros(n + 1, dtype=np.int32)
-    pointer1 = np.zeros(n + 1, dtype=np.int32)
+    width = int(np.sqrt(stencil.shape[1]) + 0.5)
+    k = (width - 1) // 2
+    capacity = n * width * width * bs
+    pointer = np.zeros((2, n + 1), dtype=np.int32)
+    cols = np.empty((2, capacity), dtype=np.int32)
+    source = np.empty((2, capacity), dtype=np.int64)
+    count = np.zeros(2, dtype=np.int64)
     for i in range(n):
         r = rows[i]
-        c0 = c1 = 0
-        for e in range(indptr[r], indptr[r + 1]):
-            f = field[columns[e]]
-            if f == 0:
-                c0 += 1
-            elif f == 1:
-                c1 += 1
-        pointer0[i + 1] = pointer0[i] + c0
-        pointer1[i + 1] = pointer1[i] + c1
-    cols0 = np.empty(pointer0[n], dtype=np.int32)
-    cols1 = np.empty(pointer1[n], dtype=np.int32)
-    source0 = np.empty(pointer0[n], dtype=np.int64)
-    source1 = np.empty(pointer1[n], dtype=np.int64)
-    for i in range(n):
-        r = rows[i]
-        k0, k1 = pointer0[i], pointer1[i]
-        for e in range(indptr[r], indptr[r + 1]):
-            c = columns[e]
-            f = field[c]
-            if f == 0:
-                cols0[k0] = position[c]
-                source0[k0] = e
-                k0 += 1
-            elif f == 1:
-                cols1[k1] = position[c]
-                source1[k1] = e
-                k1 += 1
-    return (pointer0, cols0, source0), (pointer1, cols1, source1)
+        f = r // bs
+        fi, fj = f % nfx, f // nfx
+        stored = indptr[r + 1] > indptr[r]
+        for dj in range(-k, k + 1):
+            for di in range(-k, k + 1):
+                gi, gj = fi + di, fj + dj
+                if gi < 0 or gi >= nfx or gj < 0 or gj >= nfy:
+                    continue
+                for D in range(bs):
+                    c = bs * (gi + nfx * gj) + D
+                    b = field[c]
+                    if b < 0:
+                        continue
+                    cols[b, count[b]] = position[c]
+                    source[b, count[b]] = indptr[r] + bs * stencil[f, (di + k) + width * (dj + k)] + D if stored else -1
+                    count[b] += 1
+        pointer[0, i + 1] = count[0]
+        pointer[1, i + 1] = count[1]
+    return ((pointer[0].copy(), cols[0, : count[0]].copy(), source[0, : count[0]].copy()),
+            (pointer[1].copy(), cols[1, : count[1]].copy(), source[1, : count[1]].copy()))
 
 
 @numba.njit(cache=True)
@@ -95,132 +108,186 @@ def _diagonal_positions(pointer, cols):
 
 
 @numba.njit(cache=True)
-def _schur(p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal):
-    """Pattern and values of ``A11 - A10 diag(A00)^-1 A01`` (``diagonal`` = diag(A00)), columns
-    increasing within each row: one pass, the row's columns found by a scan of the range it touched."""
+def _masked_values(pointer, cols, source, row_free, col_free, square, grid_values, out):
+    """A block's values: the grid matrix's where row and column are free; elsewhere the identity
+    (``square``: a diagonal block) or zero."""
+    for i in range(pointer.shape[0] - 1):
+        for k in range(pointer[i], pointer[i + 1]):
+            c = cols[k]
+            if row_free[i] and col_free[c]:
+                out[k] = grid_values[source[k]]
+            elif square and c == i:
+                out[k] = 1.0
+            else:
+                out[k] = 0.0
+
+
+@numba.njit(cache=True)
+def _schur_pattern(p11, c11, p10, c10, p01, c01):
+    """Pattern of ``A11 - A10 diag(A00)^-1 A01``, columns increasing within each row: the row's
+    columns found by a scan of the range it touched; a velocity pair's second dof (see
+    :func:`_schur_values`) adds no column its first did not."""
     n = p11.shape[0] - 1
     mark = np.full(n, -1, dtype=np.int64)
-    acc = np.zeros(n)
     pointer = np.zeros(n + 1, dtype=np.int32)
     capacity = max(16, 4 * p11[n])
     cols = np.empty(capacity, dtype=np.int32)
-    values = np.empty(capacity)
     for i in range(n):
         lo, hi = n, -1
         for k in range(p11[i], p11[i + 1]):
             j = c11[k]
-            if mark[j] != i:
-                mark[j] = i
-                lo, hi = min(lo, j), max(hi, j)
-            acc[j] += v11[k]
-        for k in range(p10[i], p10[i + 1]):
+            mark[j] = i
+            lo, hi = min(lo, j), max(hi, j)
+        for k in range(p10[i], p10[i + 1], 2):
             m = c10[k]
-            s = v10[k] / diagonal[m]
             for q in range(p01[m], p01[m + 1]):
                 j = c01[q]
-                if mark[j] != i:
-                    mark[j] = i
-                    lo, hi = min(lo, j), max(hi, j)
-                acc[j] -= s * v01[q]
+                mark[j] = i
+                lo, hi = min(lo, j), max(hi, j)
         start = pointer[i]
         if start + (hi - lo + 1) > capacity:
             capacity = max(2 * capacity, start + hi - lo + 1)
-            grown_cols, grown_values = np.empty(capacity, dtype=np.int32), np.empty(capacity)
-            grown_cols[:start], grown_values[:start] = cols[:start], values[:start]
-            cols, values = grown_cols, grown_values
+            grown = np.empty(capacity, dtype=np.int32)
+            grown[:start] = cols[:start]
+            cols = grown
         k = start
         for j in range(lo, hi + 1):
             if mark[j] == i:
                 cols[k] = j
-                values[k] = acc[j]
-                acc[j] = 0.0
                 k += 1
         pointer[i + 1] = k
-    return pointer, cols[: pointer[n]].copy(), values[: pointer[n]].copy()
+    return pointer, cols[: pointer[n]].copy()
 
 
 @numba.njit(cache=True)
 def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal, out):
-    """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern, summed as :func:`_schur` does."""
+    """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern (:func:`_schur_pattern`).
+
+    The velocity dofs come in pairs (the two components of a function, both in the pattern or
+    neither): a row of ``A10`` holds both of a pair, side by side, and their rows of ``A01`` have
+    the same columns, so a pair is taken in one pass over those columns (each sum is added to in
+    the same order as one dof at a time)."""
     n = pointer.shape[0] - 1
     acc = np.zeros(n)
     for i in range(n):
         for k in range(p11[i], p11[i + 1]):
             acc[c11[k]] += v11[k]
-        for k in range(p10[i], p10[i + 1]):
+        for k in range(p10[i], p10[i + 1], 2):
             m = c10[k]
-            s = v10[k] / diagonal[m]
+            s0 = v10[k] / diagonal[m]
+            s1 = v10[k + 1] / diagonal[m + 1]
+            second = p01[m + 1] - p01[m]  # from the first dof's row to the second's
             for q in range(p01[m], p01[m + 1]):
-                acc[c01[q]] -= s * v01[q]
+                j = c01[q]
+                acc[j] -= s0 * v01[q]
+                acc[j] -= s1 * v01[q + second]
         for k in range(pointer[i], pointer[i + 1]):
             out[k] = acc[cols[k]]
             acc[cols[k]] = 0.0
 
 
+def _padded(free: np.ndarray, bs: int, nfx: int, nfy: int) -> np.ndarray:
+    """The dofs (increasing) of the functions within :data:`PATTERN_MARGIN` of a free dof's function
+    (structured numbering: one rank)."""
+    near = np.zeros(nfx * nfy, dtype=bool)
+    near[free // bs] = True
+    near = dilate(near.reshape(nfy, nfx), PATTERN_MARGIN).ravel()
+    return (bs * np.flatnonzero(near)[:, None] + np.arange(bs)).ravel()
+
+
 class FreeBlocks:
     """The free dofs of a grid matrix (one rank) as a 2 x 2 ``MATNEST`` of velocity and pressure
-    blocks, and the ``selfp`` Schur complement of its (1, 1) block.
+    blocks on a padded pattern (see the module's docstring), and the ``selfp`` Schur complement of
+    its (1, 1) block.
 
     Args:
         grid_matrix: the :class:`fempm.matrix.GridMatrix` behind the system.
-        free: the free dofs (global numbers, increasing).
-        fields: components per field of the interleaved dofs (two fields).
+        free: the free dofs (global numbers, increasing) whose values the blocks take.
+        fields: components per field of the interleaved dofs: a velocity of two, then one more.
+        seed: the free dofs the pattern is padded around (default ``free``).
 
     Attributes:
         nest: the PETSc ``MATNEST`` ``[[A00, A01], [A10, A11]]``.
         schur: ``A11 - A10 diag(A00)^-1 A01`` (AIJ).
         order: the global dof of every row of ``nest`` (the first field's dofs, then the second's).
         index_sets: the rows of each field in ``nest`` (named as ``fields``).
+        seed: as given.
     """
 
-    def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int]):
-        self.grid_matrix = grid_matrix
-        lay = grid_matrix.layout
+    def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int], seed: np.ndarray | None = None):
+        self.grid_matrix, self.seed = grid_matrix, np.asarray(free if seed is None else seed, dtype=np.int64)
+        lay, space = grid_matrix.layout, grid_matrix.space
         names = list(fields)
+        if len(fields) != 2 or fields[names[0]] != 2:
+            raise ValueError(f"the blocks need a two-component field and another, not {fields}")
         field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
-        field, position, rows0, rows1 = _numbering(np.asarray(free, dtype=np.int64), field_of_component,
-                                                   lay.num_owned_rows)
+        pattern = _padded(self.seed, space.bs, space.basis.nfx, space.basis.nfy)
+        field, position, rows0, rows1 = _numbering(pattern, field_of_component, lay.num_owned_rows)
+        self._field = field
         self.order = np.concatenate([rows0, rows1])
+        self._sizes = (len(rows0), len(rows1))
         rows = (rows0, rows1)
         self._blocks = {}
-        mats = [[None, None], [None, None]]
         for i in range(2):
-            for j, (pointer, cols, source) in enumerate(_row_blocks(lay.indptr, lay.columns, rows[i], field, position)):
-                values = grid_matrix.values[source]
-                self._blocks[i, j] = (pointer, cols, source, values)
-                mats[i][j] = PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), (pointer, cols, values),
-                                                             comm=PETSc.COMM_SELF)
+            cut = _row_blocks(lay.indptr, lay.stencil, space.basis.nfx, space.basis.nfy, space.bs, rows[i], field,
+                              position)
+            for j, (pointer, cols, source) in enumerate(cut):
+                self._blocks[i, j] = (pointer, cols, source, np.empty(len(cols)))
         self._diagonal = _diagonal_positions(self._blocks[0, 0][0], self._blocks[0, 0][1])
         if np.any(self._diagonal < 0):
-            raise ValueError("a free velocity dof has no diagonal entry")
-        self.nest = PETSc.Mat().createNest(mats, comm=PETSc.COMM_SELF)
-        self._mats = mats
-        self._schur_pointer, self._schur_cols, self._schur_values = _schur(
-            *self._block_arrays(1, 1), *self._block_arrays(1, 0), *self._block_arrays(0, 1),
-            self._blocks[0, 0][3][self._diagonal])
+            raise ValueError("a velocity dof has no diagonal entry")
+        self._fill_blocks(free)
+        self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
+                                                       comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
+        self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
+        pointers_and_columns = [self._blocks[i, j][:2] for i, j in ((1, 1), (1, 0), (0, 1))]
+        self._schur_pointer, self._schur_cols = _schur_pattern(*[a for pc in pointers_and_columns for a in pc])
+        self._schur_values = np.empty(len(self._schur_cols))
+        self._fill_schur()
         n1 = len(rows1)
         self.schur = PETSc.Mat().createAIJWithArrays(
             (n1, n1), (self._schur_pointer, self._schur_cols, self._schur_values), comm=PETSc.COMM_SELF)
         isets = self.nest.getNestISs()[0]
         self.index_sets = [(names[0], isets[0]), (names[1], isets[1])]
 
+    def covers(self, free: np.ndarray) -> bool:
+        """Whether every one of the ``free`` dofs is in the pattern."""
+        return bool(np.all(self._field[free] >= 0))
+
     def _block_arrays(self, i, j):
         pointer, cols, _, values = self._blocks[i, j]
         return pointer, cols, values
+
+    def _fill_blocks(self, free: np.ndarray):
+        is_free = np.zeros(len(self._field), dtype=np.bool_)
+        is_free[free] = True
+        self._free = is_free[self.order]  # per row of nest: free in this solve
+        n0 = self._sizes[0]
+        part = (self._free[:n0], self._free[n0:])
+        for (i, j), (pointer, cols, source, values) in self._blocks.items():
+            _masked_values(pointer, cols, source, part[i], part[j], i == j, self.grid_matrix.values, values)
+
+    def refill(self, free: np.ndarray):
+        """Take the grid matrix's current values for these ``free`` dofs (:meth:`covers` them)."""
+        self._fill_blocks(free)
+        for row in self._mats:
+            for m in row:
+                m.stateIncrease()
+        self.nest.stateIncrease()
+        self._fill_schur()
+        self.schur.stateIncrease()
 
     def _fill_schur(self):
         _schur_values(self._schur_pointer, self._schur_cols, *self._block_arrays(1, 1), *self._block_arrays(1, 0),
                       *self._block_arrays(0, 1), self._blocks[0, 0][3][self._diagonal], self._schur_values)
 
-    def refill(self):
-        """Take the grid matrix's current values (same pattern)."""
-        source_values = self.grid_matrix.values
-        for (i, j), (_, _, source, values) in self._blocks.items():
-            np.take(source_values, source, out=values)
-            self._mats[i][j].stateIncrease()
-        self.nest.stateIncrease()
-        self._fill_schur()
-        self.schur.stateIncrease()
+    def restrict(self, vector: np.ndarray) -> np.ndarray:
+        """A vector by global dof in the rows of ``nest``, zero on the dofs not free."""
+        return np.where(self._free, vector[self.order], 0.0)
+
+    def extend(self, solution: np.ndarray, out: np.ndarray):
+        """The free rows of a solution in the rows of ``nest`` into ``out``, by global dof."""
+        out[self.order[self._free]] = solution[self._free]
 
     def destroy(self):
         for row in self._mats:

@@ -172,7 +172,10 @@ class Space:
         for cached_order in (order, order + 1, order + 2):
             hit = particles.cache.get((id(self.basis), cached_order))
             if hit is not None:
-                return hit[0][:, :num_jets], hit[1]
+                if cached_order != order:  # kept contiguous for the next caller of this order
+                    hit = (np.ascontiguousarray(hit[0][:, :num_jets]), *hit[1:])
+                    particles.cache[(id(self.basis), order)] = hit
+                return hit[0], hit[1]
         phi = self.basis.tabulate(particles.cell, particles.xi, order)
         lfun = self.local_functions_of_cells(particles.cell)
         # the basis is kept with its tabulation: alive, its id cannot be reused by another basis

@@ -73,6 +73,7 @@ class Walls:
         self.released = 0
         self._state = {}
         self.stops = 0
+        self._held_for = None  # the active set the held dofs were made for
         self._set_held()
 
     def _contact_of(self, owned: np.ndarray):
@@ -104,7 +105,11 @@ class Walls:
         self.wet = np.zeros(len(self.normal), dtype=bool)  # material in the function's support last step
 
     def _set_held(self):
-        """:attr:`dofs`, :attr:`values`, :attr:`positions`: the fixed dofs and the active contact dofs."""
+        """:attr:`dofs`, :attr:`values`, :attr:`positions`: the fixed dofs and the active contact dofs
+        (kept when the active set is that of the last call, as it mostly is from one step to the next)."""
+        if self._held_for is not None and np.array_equal(self._held_for, self.active):
+            return
+        self._held_for = self.active.copy()
         partners = self.partner[self.active]
         contact = np.concatenate([self.normal[self.active], partners[partners >= 0]])
         dofs = np.concatenate([self._fixed, self._owned[contact]])
@@ -174,8 +179,9 @@ class Walls:
         return functions * self.space.bs + self.normal % self.space.bs
 
     def _gather_state(self):
-        ids = self._ids()
-        gather = lambda mask: sorted(int(i) for part in self.space.comm.allgather(ids[mask]) for i in part)  # noqa: E731
+        ids, comm = self._ids(), self.space.comm
+        gather = lambda mask: np.sort(np.concatenate(comm.allgather(ids[mask]) if comm.size > 1  # noqa: E731
+                                                     else [ids[mask]])).tolist()
         self._state = {"walls_released": gather(~self.active), "walls_dry": gather(~self.wet)}
 
     def contact_state(self) -> dict:
