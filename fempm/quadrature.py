@@ -32,6 +32,8 @@ velocity is the previous step's grid velocity).
 from __future__ import annotations
 
 import ctypes
+import hashlib
+import platform
 from collections.abc import Callable, Mapping
 
 import basix
@@ -59,9 +61,22 @@ __all__ = ["GaussForm", "ParticleForm", "Symbols"]
 
 FormBuilder = Callable[["Symbols"], ufl.Form]
 
+
+def _cpu_tag() -> str:
+    """A short hash of this CPU's model and instruction-set flags (Linux; else the machine's name)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = [line for line in f if line.startswith(("model name", "flags"))][:2]
+    except OSError:
+        lines = [platform.machine(), platform.processor()]
+    return hashlib.sha1("".join(lines).encode()).hexdigest()[:12]
+
+
 # the kernels are compiled on the machine that runs them: its vector instructions, but no fused
-# multiply-adds (-ffp-contract=off), so the kernels' numbers are those of a plain -O2 build
-_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2", "-march=native", "-ffp-contract=off"]}
+# multiply-adds (-ffp-contract=off), so the kernels' numbers are those of a plain -O2 build. FFCx's
+# cache is keyed by these arguments, not by the CPU: the CPU's tag in a (unused) define keeps a
+# kernel built for one CPU from being loaded on another that shares the cache (an HPC home folder)
+_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
 _REGULAR, _LUMPED = 0, 1  # subdomain ids of s.dx and s.dx_lumped on the jet cell
 _KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
 _ffi = FFI()
