@@ -16,13 +16,15 @@ import numpy as np
 
 from fempm.errors import InputError
 
-__all__ = ["Controls", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
+__all__ = ["Controls", "INITIAL_ACCELERATIONS", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
 
 SIDES = ("left", "right", "bottom", "top")
 #: The conditions a side may have (see :class:`Physics`).
 WALLS = ("slip", "no-slip", "outflow", "open")
 #: The particle-grid transfers (see :class:`Scheme` and :mod:`fempm.transfer`).
 TRANSFERS = ("flip", "apic", "tpic", "affine-flip")
+#: how the implicit step gets Newmark's a_0 (:attr:`Scheme.initial_acceleration`)
+INITIAL_ACCELERATIONS = ("solved", "given")
 #: ``Controls.matrix_region = "auto"`` keeps rows only near the water above this many cells.
 FLUID_REGION_CELLS = 100_000
 
@@ -117,6 +119,13 @@ class Scheme:
             increments let a column at rest grow a grid-scale velocity mode; on Q1 a share of
             100/s does not hold it either (``apic`` does: ``tests/test_implicit.py``).
         forms: the weak forms, a file of ``forms/`` by bare name or a path to a ``.py`` file.
+        initial_acceleration: Newmark's ``a_0``, one of :data:`INITIAL_ACCELERATIONS`: ``solved``
+            (the first step is solved once from the particles' own ``a_0``, and its end-of-step
+            acceleration, taken at the particles where they stand, becomes ``a_0``: a column
+            released from rest starts with the acceleration its pressure gives it, not zero;
+            :meth:`fempm.implicit.ImplicitSolver.solve_initial_acceleration`; not with moving
+            walls, whose start is an impulse) or ``given`` (the particles' ``acceleration`` field
+            as it is, e.g. an exact one).
     """
 
     dt: float = 1.0e-3
@@ -131,6 +140,7 @@ class Scheme:
     pic_blend: float = 0.0
     pic_rate: float = 100.0
     forms: str | Path = "incompressible"
+    initial_acceleration: str = "solved"
 
     def check(self):
         """Raise :class:`InputError` naming the first unacceptable value."""
@@ -150,6 +160,9 @@ class Scheme:
             raise InputError(f"transfer must be one of {TRANSFERS}, got {self.transfer!r}")
         if not (np.isfinite(self.pic_rate) and self.pic_rate >= 0):
             raise InputError(f"pic_rate must be a finite number >= 0 (1/s), got {self.pic_rate}")
+        if self.initial_acceleration not in INITIAL_ACCELERATIONS:
+            raise InputError(f"initial_acceleration must be one of {INITIAL_ACCELERATIONS}, "
+                             f"got {self.initial_acceleration!r}")
 
     def volume_share(self, dt: float) -> float:
         """The volume correction's share of a step of size ``dt``: the forms' ``alpha``."""

@@ -56,9 +56,10 @@ class EnergyWatch:
     large step). An eruption that crowds the water loses potential energy as it gains kinetic, so
     a particle faster than ``sqrt((FALL_FACTOR v_fall)^2 + (START_FACTOR v_0)^2)`` stops the run as
     well: ``v_fall = sqrt(2 |g| H)`` a fall from the top of the box, ``v_0`` the fastest start (the
-    jets of a body thrown at a wall outrun it: 2.5 times at 100 m/s)."""
+    jets of a body thrown at a wall outrun it: 2.5 times at 100 m/s; a wave landing on a thin layer
+    squeezes out a jet at about twice a fall: ``scenes/obstacle.toml``)."""
 
-    FALL_FACTOR, START_FACTOR = 2.0, 3.0
+    FALL_FACTOR, START_FACTOR = 2.5, 3.0
 
     def __init__(self, particles, gravity, gain_limit: float):
         self.particles, self.gravity, self.gain_limit = particles, gravity, gain_limit
