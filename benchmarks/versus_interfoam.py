@@ -2,10 +2,10 @@
 
 Runs interFoam (``benchmarks/interfoam.py``: the same tank, column and walls, VOF with air)
 at 40² and 80² cells (and 160² with ``--full``), and fempm's ``scenes/dambreak.toml`` as it
-stands, with an adaptive step (Courant 0.5, dt <= 2 ms), and at two finer settings (60² and 80²,
-2 x 2 particles per cell: 60² with the scene's fixed step, 80² with the adaptive and the fixed
-step), each to 2 s of flow, one after the other on one core. The accuracy measure is the surge front's RMS relative difference from
-interFoam's converged 160² front over 0.3 < T <= 3 (``fempm.references.front_difference``; the
+stands (its fixed step of 1 ms), with adaptive steps (Courant 1 and 0.5, dt <= 10 ms), and at
+finer settings (60² and 80², 2 x 2 particles per cell, Courant 1; 80² also with the scene's fixed
+step), each to 2 s of flow, one after the other on one core. The accuracy measure is the surge
+front's RMS relative difference from interFoam's converged 160² front over 0.3 < T <= 3 (``fempm.references.front_difference``; the
 stored reference, or this invocation's own 160² run with ``--full``), i.e. over the first
 0.27 s. Prints a table (grid, steps, wall time, front difference) and each code's wall time
 to reach a given front difference, interpolated log-log along its error-against-wall-time
@@ -53,9 +53,11 @@ from fempm.references import dimensionless_front, front_difference, interfoam_fr
 SCENE = ROOT / "scenes" / "dambreak.toml"
 END_TIME, QUICK_END_TIME = 2.0, 0.27     # s of flow; the front measure needs t <= 0.27 s
 TARGETS = (0.025, 0.012)                 # front differences at which the wall times are compared
-FEMPM_MIDDLE = (60, 4)                   # cells per side, particles per cell (the column: 15 x 30 cells)
-FEMPM_FINER = (80, 4)
-FEMPM_ADAPTIVE = {"courant": 0.5, "dt": 2e-3}  # the scene's grid with an adaptive step (dt its bound)
+FAST = {"courant": 1.0, "dt": 1e-2}      # an adaptive step: its Courant number and largest step
+CAREFUL = {"courant": 0.5, "dt": 1e-2}
+#: fempm's runs after the scene as it stands: (cells per side, particles per cell) or None for the
+#: scene's 40² and 2 x 2 per cell (60²: the column 15 x 30 cells), and the step (None: the scene's)
+FEMPM_RUNS = ((None, FAST), (None, CAREFUL), ((60, 4), FAST), ((80, 4), FAST), ((80, 4), None))
 STORED = (40, 80, 160)                   # grids of the stored interFoam fronts
 
 
@@ -278,10 +280,8 @@ def run_all(quick: bool, full: bool) -> tuple[list[Row], str, str, str | None]:
         print(f"versus_interfoam: interFoam {cells}²: {rows[-1].steps} steps, {rows[-1].wall_s:.1f} s", flush=True)
     rows.append(fempm_row(end_time))
     if not quick:
-        rows.append(fempm_row(end_time, step=FEMPM_ADAPTIVE))
-        rows.append(fempm_row(end_time, *FEMPM_MIDDLE))
-        rows.append(fempm_row(end_time, *FEMPM_FINER, step=FEMPM_ADAPTIVE))
-        rows.append(fempm_row(end_time, *FEMPM_FINER))
+        for grid, step in FEMPM_RUNS:
+            rows.append(fempm_row(end_time, *(grid or (None, None)), step=step))
     reference = "interFoam 160²"
     ref, reference_long = interfoam_front(160), "the stored interFoam 160² front (`fempm.references.interfoam_front(160)`)"
     if full and not skipped:
