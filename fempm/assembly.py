@@ -339,13 +339,20 @@ def pack_jets(phi, lfun, values, index, offset, out):
 
 @numba.njit(cache=True)
 def jets_at_particles(phi, lfun, values, out):
-    """``out[p, a, c] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: jets of a grid function."""
-    n, nq, nl = phi.shape
-    bs = values.shape[1]
+    """``out[p, a, c] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: jets of a grid function, the
+    first ``out.shape[1]`` of ``phi``'s (a tabulation of a higher order serves). A particle's
+    coefficients are gathered once for all its jets."""
+    n, nl = lfun.shape
+    nq, bs = out.shape[1], values.shape[1]
+    local = np.empty((bs, nl))
     for p in range(n):
+        for l in range(nl):
+            f = lfun[p, l]
+            for c in range(bs):
+                local[c, l] = values[f, c]
         for a in range(nq):
             for c in range(bs):
                 s = 0.0
                 for l in range(nl):
-                    s += phi[p, a, l] * values[lfun[p, l], c]
+                    s += phi[p, a, l] * local[c, l]
                 out[p, a, c] = s

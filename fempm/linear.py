@@ -192,9 +192,9 @@ class LinearSolver:
             A.createSubMatrix(index_set, index_set, submat=A_free)
             self.reuses += 1
         else:
+            self._release_previous()
             index_set = PETSc.IS().createGeneral(free, comm=self.comm)
             A_free = A.createSubMatrix(index_set, index_set)
-            self.ksp.reset()  # the free set, so the operator's size, changes between solves
             self._previous = (A, free.copy(), index_set, A_free)
         b_free = b.getSubVector(index_set)
         x_free = A_free.createVecRight()
@@ -213,6 +213,16 @@ class LinearSolver:
         x_free.copy(x_sub)
         x.restoreSubVector(index_set, x_sub)
         return x
+
+    def _release_previous(self):
+        """Free the last solve's set-up, block and index set before a new free set's are made: the free
+        set changes between solves (the size of the operator too), and kept until replaced they
+        would add to the peak of the next set-up."""
+        self.ksp.reset()
+        if self._previous is not None and isinstance(self._previous[3], PETSc.Mat):
+            self._previous[2].destroy()
+            self._previous[3].destroy()
+        self._previous = None
 
     def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, size: int) -> int:
         """The KSP's solve, with the Schur complement's LU package chosen by ``size`` (exact Schur

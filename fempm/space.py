@@ -158,21 +158,23 @@ class Space:
         """Local function numbers of the functions non-zero in each (local) cell."""
         return self.numbering.local_index[self.basis.cell_functions(cells)]
 
-    def tabulate_particles(self, particles, order: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    def tabulate_particles(self, particles, order: int = 1, exact: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Jets of the basis at the particles and their local function numbers.
 
         Cached on the particles until they are relocated; a cached higher order
-        serves a lower one (jets are listed by total order).
+        serves a lower one (jets are listed by total order): as a contiguous copy of its first
+        jets, kept for the next caller, or with ``exact=False`` as it is (more jets than asked,
+        for a reader that takes the first ones: no copy).
 
         Returns:
-            ``phi`` of shape ``(n, len(jet_indices(order)), (k+1)^2)`` and
-            ``lfun`` of shape ``(n, (k+1)^2)``.
+            ``phi`` of shape ``(n, len(jet_indices(order)), (k+1)^2)`` (``exact=False``: perhaps
+            more jets) and ``lfun`` of shape ``(n, (k+1)^2)``.
         """
         num_jets = (order + 1) * (order + 2) // 2
         for cached_order in (order, order + 1, order + 2):
             hit = particles.cache.get((id(self.basis), cached_order))
             if hit is not None:
-                if cached_order != order:  # kept contiguous for the next caller of this order
+                if cached_order != order and exact:  # kept contiguous for the next caller of this order
                     hit = (np.ascontiguousarray(hit[0][:, :num_jets]), *hit[1:])
                     particles.cache[(id(self.basis), order)] = hit
                 return hit[0], hit[1]

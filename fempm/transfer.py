@@ -29,6 +29,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fempm.assembly import jets_at_particles
+from fempm.bases import jet_indices
 from fempm.options import TRANSFERS
 from fempm.space import GridFunction, Space
 
@@ -141,9 +142,8 @@ def flip(velocity: np.ndarray, change: np.ndarray, new: np.ndarray, pic_blend: f
 
 
 def _jets(gf: GridFunction, particles, order: int) -> np.ndarray:
-    phi, lfun = gf.space.tabulate_particles(particles, order)
-    phi = np.ascontiguousarray(phi)
-    out = np.empty((len(particles), phi.shape[1], gf.space.bs))
+    phi, lfun = gf.space.tabulate_particles(particles, order, exact=False)
+    out = np.empty((len(particles), len(jet_indices(order)), gf.space.bs))
     jets_at_particles(phi, lfun, np.ascontiguousarray(gf.values), out)
     return out
 

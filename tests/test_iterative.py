@@ -111,3 +111,22 @@ def test_kept_pattern_takes_the_new_values():
     assert np.array_equal(twice.getArray(), fresh.getArray())  # measured: equal to the last bit
     half = once.getArray() / 2
     assert np.linalg.norm(twice.getArray() - half) <= 1e-12 * np.linalg.norm(half)  # measured 0 (the scaling is exact)
+
+
+def test_a_new_free_set_frees_the_last_block():
+    """The block of the last free set (and its index set) is destroyed before a new free set's is
+    extracted (one-sided walls change the free set every step: kept until replaced, the old block
+    and its preconditioner added to the peak of the next set-up)."""
+    comm = MPI.COMM_SELF
+    scene = load_scene(SCENE)
+    solver = build_solver(replace(scene, solver=replace(scene.solver, petsc=linear.DIRECT)), comm)
+    solver.step()
+    ls = solver.system.linear_solver
+    A, free = solver.region.matrix, ls._previous[1]
+    old_index_set, old_block = ls._previous[2], ls._previous[3]
+    assert old_block.handle != 0
+    b = A.createVecLeft()
+    b.set(1.0)
+    ls.solve(A, b, free[1:])
+    assert (old_block.handle, old_index_set.handle) == (0, 0)  # measured: both destroyed (0 = no PETSc object)
+    assert ls._previous[3].getSize() == (len(free) - 1, len(free) - 1)
