@@ -125,26 +125,29 @@ def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int
 
 
 # -- equal error -----------------------------------------------------------------------------------
-def wall_at_error(rows: list[Row], error: float, time_of=lambda r: r.wall_s) -> tuple[float | None, bool]:
+def wall_at_error(rows: list[Row], error: float, time_of=lambda r: r.wall_s) -> tuple[float | None, str]:
     """Time (``time_of`` a run, default its wall time) at which a code's error-against-time curve
-    reaches ``error``, and whether that was extrapolated beyond its runs: linear in log-log between
-    consecutive runs (by time), the cheapest bracketing pair; outside them, the nearest pair's line."""
+    reaches ``error``, and a mark: linear in log-log between consecutive runs (by time), the
+    cheapest bracketing pair (mark ``""``); below every run's error, the finest pair's line
+    extrapolated (``"*"``); above every run's error, the cheapest run's time, an upper bound (``"≤"``)."""
     pts = sorted((time_of(r), r.error) for r in rows if r.error and r.error > 0)
     if len(pts) < 2:
-        return None, False
+        return None, ""
     lw, le = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
     e = math.log(error)
     for k in range(len(pts) - 1):
         if min(le[k], le[k + 1]) <= e <= max(le[k], le[k + 1]) and le[k] != le[k + 1]:
-            return float(np.exp(lw[k] + (e - le[k]) * (lw[k + 1] - lw[k]) / (le[k + 1] - le[k]))), False
-    k = 0 if e > le.max() else len(pts) - 2
+            return float(np.exp(lw[k] + (e - le[k]) * (lw[k + 1] - lw[k]) / (le[k + 1] - le[k]))), ""
+    if e > le.max():
+        return pts[0][0], "≤"
+    k = len(pts) - 2
     if le[k] == le[k + 1]:
-        return None, True
-    return float(np.exp(lw[k] + (e - le[k]) * (lw[k + 1] - lw[k]) / (le[k + 1] - le[k]))), True
+        return None, "*"
+    return float(np.exp(lw[k] + (e - le[k]) * (lw[k + 1] - lw[k]) / (le[k + 1] - le[k]))), "*"
 
 
 def equal_error(rows: list[Row]) -> list[tuple]:
-    """Per target: (target, then (time, extrapolated?) of interFoam's wall, fempm's call, fempm's steps,
+    """Per target: (target, then (time, mark) of interFoam's wall, fempm's call, fempm's steps,
     interFoam's CPU, fempm's call CPU)."""
     foam = [r for r in rows if r.code == "interFoam"]
     mpm = [r for r in rows if r.code == "fempm"]
@@ -154,8 +157,8 @@ def equal_error(rows: list[Row]) -> list[tuple]:
 
 
 # -- the outputs --------------------------------------------------------------------------------------
-def _seconds(value: float | None, extrapolated: bool = False) -> str:
-    return "n/a" if value is None else f"{value:.1f}" + ("*" if extrapolated else "")
+def _seconds(value: float | None, mark: str = "") -> str:
+    return "n/a" if value is None else ("≤ " if mark == "≤" else "") + f"{value:.1f}" + ("*" if mark == "*" else "")
 
 
 def _ratio(a: float | None, b: float | None) -> str:
@@ -239,7 +242,8 @@ i.e. over the first 0.27 s.
 {tables}
 
 The second table gives each code's time to reach a front difference, interpolated linearly in
-log-log between its runs (* extrapolated beyond them, along the nearest two runs' line).
+log-log between its runs (* extrapolated beyond its finest runs, along their line; ≤ every run of the
+code is within the difference already: its cheapest run's time, an upper bound).
 
 ![front difference against wall time]({figure})
 """

@@ -32,11 +32,12 @@ def test_front_of_rows_is_linear_between_cell_centres():
 def test_wall_at_error_interpolates_log_log():
     rows = [versus_interfoam.Row("x", c, None, 1, w, w, None, None, error=e) for c, w, e in ((40, 1.0, 0.04),
                                                                                           (80, 10.0, 0.01))]
-    wall, extrapolated = versus_interfoam.wall_at_error(rows, 0.02)
-    assert wall == pytest.approx(10**0.5, rel=1e-12) and not extrapolated
-    wall, extrapolated = versus_interfoam.wall_at_error(rows, 0.005)  # beyond the finest run
-    assert wall == pytest.approx(10**1.5, rel=1e-12) and extrapolated
-    assert versus_interfoam.wall_at_error(rows[:1], 0.02) == (None, False)
+    wall, mark = versus_interfoam.wall_at_error(rows, 0.02)
+    assert wall == pytest.approx(10**0.5, rel=1e-12) and mark == ""
+    wall, mark = versus_interfoam.wall_at_error(rows, 0.005)  # beyond the finest run: extrapolated
+    assert wall == pytest.approx(10**1.5, rel=1e-12) and mark == "*"
+    assert versus_interfoam.wall_at_error(rows, 0.05) == (1.0, "≤")  # every run within it: the cheapest's time
+    assert versus_interfoam.wall_at_error(rows[:1], 0.02) == (None, "")
 
 
 @needs_interfoam
