@@ -49,6 +49,8 @@ STUDY = [
     ("no_alpha", "no volume correction (α 0)", {"solver.volume_correction": 0.0}),
     ("ppc9_no_alpha", "3 × 3 per cell, α 0", {"bodies.0.particles_per_cell": 9, "solver.volume_correction": 0.0}),
     ("dt", "dt 5e-4", {"time.dt": 5e-4}),
+    ("adaptive", "adaptive step, Courant 0.5, dt ≤ 1e-2", {"time.courant": 0.5, "time.dt": 1e-2}),
+    ("adaptive_fast", "adaptive step, Courant 1, dt ≤ 1e-2", {"time.courant": 1.0, "time.dt": 1e-2}),
     ("fine", "80² cells", {"domain.cells": [80, 80]}),
     ("pic", "the seed's FLIP with 10 % PIC per step", {"solver.transfer": "flip", "solver.pic_blend": 0.1,
                                                        "solver.pic_rate": 0.0}),
