@@ -118,8 +118,8 @@ class ImplicitSolver(Stepper):
             jets = transfer.grid_jets_to_particles(g, p, order=1)
             p["acceleration"][:] = jets[:, 0, g.space.field_slice("a")]
             if self.scheme.transfer != "flip":
-                kind = "tpic" if self.scheme.transfer == "tpic" else "apic"
-                _, affine = transfer.affine_grid_to_particles(g, p, kind, jets, g.space.field_slice("a"))
+                _, affine = transfer.affine_grid_to_particles(g, p, transfer.affine_rule(self.scheme.transfer), jets,
+                                                              g.space.field_slice("a"))
                 p[transfer.AFFINE_FIELDS[1]][:] = affine
 
     def project(self) -> np.ndarray:

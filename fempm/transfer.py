@@ -38,6 +38,7 @@ __all__ = [
     "AFFINE_KINDS",
     "TRANSFERS",
     "add_affine_fields",
+    "affine_rule",
     "affine_grid_to_particles",
     "affine_moments",
     "affine_particles_to_grid",
@@ -354,6 +355,12 @@ def pic_share(kind: str, pic_blend: float, pic_rate: float, dt: float) -> float:
     return 1.0 if kind in AFFINE_KINDS else min(1.0, pic_blend + pic_rate * dt)
 
 
+def affine_rule(kind: str) -> str:
+    """How a transfer ``kind`` takes its affine parts at G2P (:func:`affine_grid_to_particles`): the
+    grid gradient for ``tpic``, APIC's ``B_p D_p^-1`` for ``apic`` and ``affine-flip``."""
+    return "tpic" if kind == "tpic" else "apic"
+
+
 def add_affine_fields(particles, kind: str):
     """Give the particles the affine parts :data:`AFFINE_FIELDS` (zero) if ``kind`` carries them."""
     if kind != "flip":
@@ -390,5 +397,5 @@ def update_state(g2p: GridFunction, jets: np.ndarray, particles, kind: str, shar
     particles["acceleration"][:] = flip(particles["acceleration"], at["da"], at["a"], share)
     if kind != "flip":
         v_and_a = np.r_[space.field_slice("v"), space.field_slice("a")]
-        _, affine = affine_grid_to_particles(g2p, particles, "tpic" if kind == "tpic" else "apic", jets, v_and_a)
+        _, affine = affine_grid_to_particles(g2p, particles, affine_rule(kind), jets, v_and_a)
         particles[AFFINE_FIELDS[0]][:], particles[AFFINE_FIELDS[1]][:] = affine[:, :2], affine[:, 2:]
