@@ -33,7 +33,7 @@ from fempm.scene import Scene, parse_scene
 from fempm.simulation import build_material, check_folder
 
 __all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "TANK", "WIDTH", "add_flags", "changes",
-           "compare_front", "explicit_solver", "flag_names", "front_measures", "petsc_options", "plot_front",
+           "compare_front", "explicit_solver", "fixed_step", "flag_names", "front_measures", "petsc_options", "plot_front",
            "prepare_folder", "read_front", "scene", "stop"]
 
 #: the repository's scene (``scenes/`` is not installed with the package: a demo passes its own path)
@@ -56,7 +56,8 @@ def scene(changes: Mapping[str, object] | None = None, files: bool = True, sourc
 
     Args:
         changes: dotted scene keys to values, e.g. ``{"time.end": 0.27, "domain.cells": [80, 80]}``;
-            a number in the path indexes a list (``"bodies.0.particles_per_cell"``). A
+            a number in the path indexes a list (``"bodies.0.particles_per_cell"``); the value
+            None removes the key (``{"time.courant": None, "time.dt": 1e-3}``: a fixed step). A
             ``solver.forms`` ending in ``.py`` is a forms file of the user's own (code: it runs).
         files: False leaves out the :data:`FILES` (only the tables and summary are written).
         source: the scene file to start from.
@@ -75,7 +76,10 @@ def scene(changes: Mapping[str, object] | None = None, files: bool = True, sourc
         table = data
         for part in path:
             table = table[int(part)] if isinstance(table, list) else table.setdefault(part, {})
-        table[int(last) if isinstance(table, list) else last] = value
+        if value is None:
+            table.pop(last, None)
+        else:
+            table[int(last) if isinstance(table, list) else last] = value
     if not files:
         for key in FILES:
             data["output"].pop(key, None)
@@ -83,6 +87,12 @@ def scene(changes: Mapping[str, object] | None = None, files: bool = True, sourc
     if isinstance(end, int | float) and "snapshots" in data["output"]:  # a shorter run keeps the pictures it reaches
         data["output"]["snapshots"] = [t for t in data["output"]["snapshots"] if not t > end]
     return parse_scene(data, source="command line" if names else source, forms=own, names=names)
+
+
+def fixed_step(dt: float = 1e-3) -> dict[str, object]:
+    """The :func:`scene` changes of a fixed step ``dt`` (the scene's own adapts to the flow; the seed's
+    step is 1 ms)."""
+    return {"time.courant": None, "time.dt": dt}
 
 
 def flag_names(parser: argparse.ArgumentParser) -> dict[str, str]:
