@@ -44,13 +44,14 @@ SMOOTHING = 0.02  #: s, the moving mean the noise is measured against
 MAIN_PROBE = "right_y0.005"
 #: the runs of the page: key, label, scene changes
 STUDY = [
-    ("default", "default (2 × 2 per cell, dt 1e-3, α 0.1, affine-FLIP)", {}),
+    ("default", "default (2 × 2 per cell, adaptive step: Courant 0.5, dt ≤ 1e-2; α 0.1, affine-FLIP)", {}),
     ("ppc9", "3 × 3 particles per cell", {"bodies.0.particles_per_cell": 9}),
     ("no_alpha", "no volume correction (α 0)", {"solver.volume_correction": 0.0}),
     ("ppc9_no_alpha", "3 × 3 per cell, α 0", {"bodies.0.particles_per_cell": 9, "solver.volume_correction": 0.0}),
-    ("dt", "dt 5e-4", {"time.dt": 5e-4}),
-    ("adaptive", "adaptive step, Courant 0.5, dt ≤ 1e-2", {"time.courant": 0.5, "time.dt": 1e-2}),
-    ("adaptive_fast", "adaptive step, Courant 1, dt ≤ 1e-2", {"time.courant": 1.0, "time.dt": 1e-2}),
+    ("seed_step", "the seed's fixed step, dt 1e-3", dambreak.fixed_step(1e-3)),
+    ("ppc9_seed_step", "3 × 3 per cell, dt 1e-3", {**dambreak.fixed_step(1e-3), "bodies.0.particles_per_cell": 9}),
+    ("dt", "dt 5e-4", dambreak.fixed_step(5e-4)),
+    ("adaptive_fast", "adaptive step, Courant 1, dt ≤ 1e-2", {"time.courant": 1.0}),
     ("fine", "80² cells", {"domain.cells": [80, 80]}),
     ("pic", "the seed's FLIP with 10 % PIC per step", {"solver.transfer": "flip", "solver.pic_blend": 0.1,
                                                        "solver.pic_rate": 0.0}),

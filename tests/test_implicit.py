@@ -82,7 +82,7 @@ def test_dambreak_front_is_converged_against_a_finer_run(dambreak_fronts):
 def front_error(dt: float, initial_acceleration: str) -> float:
     """The seed's dam break to T = 3 at step ``dt`` with Newmark's ``a_0`` solved or given (zero):
     its front's difference from interFoam 160²."""
-    solver = simulation.build_solver(dambreak.scene({"time.end": 0.28, "time.dt": dt}, files=False))
+    solver = simulation.build_solver(dambreak.scene({"time.end": 0.28, **dambreak.fixed_step(dt)}, files=False))
     solver.scheme = replace(solver.scheme, initial_acceleration=initial_acceleration)
     history = [(0.0, diagnostics.front_position(solver.particles))]
     while solver.time < 0.28 - 1e-9:
@@ -110,8 +110,9 @@ def test_an_unknown_initial_acceleration_is_refused():
 
 
 def test_without_pspg_the_run_stops_with_a_diagnosis(tmp_path):
-    """method.md Fig. 3: without PSPG the seed's run diverged at 0.175 s (FLIP/PIC here: 0.171 s)."""
-    summary, front = run_dambreak(tmp_path, {"time.end": 0.3, "solver.pspg": False, "output.particles_interval": 0.05,
+    """method.md Fig. 3: without PSPG the seed's run (its fixed step, 1 ms) diverged at 0.175 s (FLIP/PIC
+    here: 0.171 s)."""
+    summary, front = run_dambreak(tmp_path, {**dambreak.fixed_step(), "time.end": 0.3, "solver.pspg": False, "output.particles_interval": 0.05,
                                              "output.grid_interval": 0.05}, files=True)
     assert summary["status"] == "stopped"
     assert "pressure" in summary["cause"] and f"t = {summary['time'] + 0.001:.3f} s" in summary["cause"]

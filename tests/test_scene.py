@@ -18,9 +18,10 @@ from mpi4py import MPI
 import fempm
 from fempm import cli
 from fempm.scene import load_scene, parse_scene, scene_from_text, to_toml
+from helpers import seed_step
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
-DAMBREAK = (SCENES / "dambreak.toml").read_text()
+DAMBREAK = seed_step((SCENES / "dambreak.toml").read_text())
 
 
 def _edit(old: str, new: str, text: str = DAMBREAK) -> str:
@@ -250,7 +251,8 @@ def test_shipped_scenes_read_back_unchanged_from_their_resolved_form():
 
 
 def test_dambreak_scene_is_the_seed_setup(comm):
-    """The shipped scene builds the demo's grid, particles and options exactly."""
+    """The shipped scene builds the demo's grid, particles and options exactly (the step adaptive:
+    Courant 0.5, at most 10 ms)."""
     from fempm.simulation import build_solver
 
     scene = load_scene(SCENES / "dambreak.toml")
@@ -261,8 +263,8 @@ def test_dambreak_scene_is_the_seed_setup(comm):
     assert solver.grid.h == grid.h and solver.particles.global_count() == 800
     assert np.array_equal(solver.particles.x, seeded.x) and np.array_equal(solver.particles.id, seeded.id)
     physics, scheme = solver.physics, solver.scheme
-    assert (scheme.dt, physics.viscosity, scheme.volume_share(scheme.dt), scheme.pspg, scheme.pic_blend, physics.gravity) == \
-        (1e-3, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
+    assert (scheme.dt, scheme.courant, physics.viscosity, scheme.alpha, scheme.pspg, scheme.pic_blend, physics.gravity) == \
+        (1e-2, 0.5, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
     assert (scheme.transfer, scheme.pic_rate) == ("affine-flip", 100.0)
     assert solver.particles["affine_velocity"].shape == solver.particles["affine_acceleration"].shape == (
         len(solver.particles), 2, 2)
@@ -397,3 +399,7 @@ def test_an_adaptive_step_lifts_the_whole_step_rule():
     text = _edit("dt = 1.0e-3", "dt = 5.0e-3\ncourant = 0.5", _edit("particles_interval = 0.05", "particles_interval = 0.0123"))
     scene = scene_from_text(text, "dambreak.toml")
     assert scene.time.courant == 0.5 and scene.output.particles_interval == 0.0123
+    # dt only bounds an adaptive step: it may exceed the run and its output intervals
+    text = _edit("dt = 1.0e-3", "dt = 2.0\ncourant = 0.5", _edit("grid_interval = 0.05", "grid_interval = 0.001"))
+    scene = scene_from_text(text, "dambreak.toml")
+    assert scene.time.dt == 2.0 > scene.time.end and scene.output.grid_interval == 0.001

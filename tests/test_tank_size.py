@@ -19,10 +19,10 @@ from fempm.eulerian import EulerianSolver
 from fempm.options import Physics, Scheme
 from fempm.scene import scene_from_text
 from fempm.verification import advance, sample
-from helpers import resting_water
+from helpers import resting_water, seed_step
 
 RHO, G = 1000.0, 9.81
-DAMBREAK = (Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml").read_text()
+DAMBREAK = seed_step((Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml").read_text())
 
 
 @pytest.mark.mpi
