@@ -43,8 +43,8 @@ compiled once per run and these constants do not change during a run (see
 import ufl
 
 from fempm import newmark
-from fempm.walls import SPEED_TOLERANCE  # motion slower than this times sqrt(|g| h) is rest
 from fempm.formsfile import switched_on  # a constant, or an expression of constants, non-zero now
+from fempm.walls import SPEED_TOLERANCE  # motion slower than this times sqrt(|g| h) is rest
 
 
 def eps(w):
