@@ -44,6 +44,7 @@ import ufl
 
 from fempm import newmark
 from fempm.formsfile import switched_on  # a constant, or an expression of constants, non-zero now
+from fempm.walls import SPEED_TOLERANCE  # motion slower than this times sqrt(|g| h) is rest
 
 
 def eps(w):
@@ -85,7 +86,8 @@ def end_map(s):
     rotating at rate omega expands at ~ ``2 omega^2 dt`` (the Gresho vortex's core grew, and its
     angular momentum, in proportion to dt). The map is predicted from the start of the step, so
     the forms stay linear; a step so large that it would fold (``|G|`` ~ 1: the flow crosses
-    cells in a step) is limited back towards the start configuration::
+    cells in a step) is limited back towards the start configuration, and water at rest has none
+    (:func:`faded_at_rest`)::
 
         G = grad(dt v_n) / max(1, |grad(dt v_n)| / MAP_LIMIT)
 
@@ -95,7 +97,27 @@ def end_map(s):
         return None
     G = ufl.grad(s.constant("dt") * s.grid("grid_velocity"))
     G = G / ufl.max_value(1, ufl.sqrt(ufl.inner(G, G)) / MAP_LIMIT)
-    return ufl.Identity(2) + G
+    return ufl.Identity(2) + faded_at_rest(s, G)
+
+
+def faded_at_rest(s, G):
+    """The map's gradient where the grid moves no faster than water at rest under gravity::
+
+        G |G|^2 / (|G|^2 + G_rest^2),   G_rest = SPEED_TOLERANCE dt sqrt(|g| / h)
+
+    ``G_rest`` is a step's strain at the speed the walls take for rest, ``SPEED_TOLERANCE
+    sqrt(|g| h)`` (``fempm.walls``), over a cell. Still water's grid velocity is the transfer's
+    noise, and a map built from it puts into the pressure's work ``-p grad w : cof G`` a force
+    linear in ``dt v_n``: the pressure's level times what the particle quadrature makes of the
+    null Lagrangian ``grad w : cof G``, no gradient, of either sign, fed back every step; under
+    a resting column's hydrostatic pressure it grew a mode in the bottom corner, where the level
+    is largest and the quadrature poorest. Faded as ``|G|^3`` below ``G_rest``, the map feeds
+    back nothing linear there; at ``|G| >> G_rest`` it is whole. Without gravity ``G_rest = 0``.
+    """
+    g = ufl.sqrt(ufl.inner(s.constant("gravity"), s.constant("gravity")))
+    rest = SPEED_TOLERANCE * s.constant("dt") * ufl.sqrt(g / s.h)
+    GG = ufl.inner(G, G)
+    return G * ufl.conditional(ufl.gt(GG, 0), GG / (GG + rest**2), 0)
 
 
 def end_divergence(s, w):
