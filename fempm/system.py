@@ -149,21 +149,21 @@ class GridSystem:
             raise SolveFailed(f"Newton did not converge in {c.newton_max_it} iterations "
                               f"(|R| = {norm:.3e}, |R0| = {r0:.3e})")
 
-    def reaction(self, forms: StepForms, particles=None) -> np.ndarray:
-        """The residual ``R(U)`` of the solved step at the owned dofs: on a held dof the force its
-        constraint exerts (one-sided walls, :meth:`fempm.walls.Walls.update`). For forms affine in
-        U ``R(U_0) + J delta`` from the solve's own vectors, else assembled again."""
-        n = self.space.num_owned_dofs
+    def reaction(self, forms: StepForms, particles=None, rows: np.ndarray | None = None) -> np.ndarray:
+        """The residual ``R(U)`` of the solved step at the owned dofs ``rows`` (default all): on a held
+        dof the force its constraint exerts (one-sided walls, :meth:`fempm.walls.Walls.update`). For
+        forms affine in U ``R(U_0) + J delta`` from the solve's own vectors, else assembled again."""
+        rows = np.arange(self.space.num_owned_dofs) if rows is None else np.asarray(rows, dtype=np.int64)
         if not forms.linear:
-            return forms.residual.assemble_vector(particles, self._R).array[:n].copy()
+            return forms.residual.assemble_vector(particles, self._R).array[rows]
         # the solve scaled R(U_0) by -1; delta = U - U_0
         gm = self._delta_of.getAttr("fempm_grid_matrix")
-        product = gm.multiply(self._delta.getArray(readonly=True)) if gm is not None else None
+        product = gm.multiply(self._delta.getArray(readonly=True), rows) if gm is not None else None
         if product is None:
-            product = self._delta_of.createVecLeft()
-            self._delta_of.mult(self._delta, product)
-            product = product.getArray(readonly=True)
-        return product[:n] - self._R.array[:n]
+            whole = self._delta_of.createVecLeft()
+            self._delta_of.mult(self._delta, whole)
+            product = whole.getArray(readonly=True)[rows]
+        return product - self._R.array[rows]
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]
