@@ -318,9 +318,10 @@ def assemble_scalar(kernel, x, weight, coeffs, consts, h):
 
 
 @numba.njit(cache=True)
-def pack_jets(phi, lfun, values, index, offset, out):
-    """``out[p, offset + index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: the jets of a
-    grid function at the particles, written where a form's kernel reads them."""
+def pack_jets(phi, lfun, values, index, out):
+    """``out[p, index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: the jets of grid functions
+    (their coefficients side by side in ``values``) at the particles, written where a form's kernel
+    reads them."""
     n, nq, nl = phi.shape
     bs = values.shape[1]
     local = np.empty((bs, nl))
@@ -334,7 +335,7 @@ def pack_jets(phi, lfun, values, index, offset, out):
                 s = 0.0
                 for l in range(nl):
                     s += phi[p, a, l] * local[c, l]
-                out[p, offset + index[c, a]] = s
+                out[p, index[c, a]] = s
 
 
 @numba.njit(cache=True)

@@ -365,18 +365,23 @@ class _Coefficients:
         self._nodal_positions, self._particle_slots = self._positions()
 
     def pack(self, particles, phi, lfun) -> np.ndarray:
-        """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
+        """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets): the
+        grid functions side by side, their jets in one pass over the particles."""
         n = len(particles)
         if not self._parts:
             return np.zeros((n, 1))
         out = np.empty((n, self.width))
+        columns, slots = [], []
         for kind, name, offset, size, index in self._parts:
             if kind == "particle":
                 out[:, offset: offset + size] = particles[name].reshape(n, size)
-            elif self.grid_functions[name].vector.array.any():
-                assembly.pack_jets(phi, lfun, self.grid_functions[name].values, index, offset, out)
+            elif self.grid_functions[name].values.any():
+                columns.append(self.grid_functions[name].values)
+                slots.append(offset + index)
             else:  # a function that is zero (U at the start of a step between walls at rest): zero jets
                 out[:, offset: offset + size] = 0.0
+        if columns:
+            assembly.pack_jets(phi, lfun, np.concatenate(columns, axis=1), np.concatenate(slots), out)
         return out
 
     def nodal_slots(self):
