@@ -52,8 +52,8 @@ def _add_particle(K, comp, jet, w, phi_p, T, rows, Ae):
     ``comp[i], jet[i]``: component and jet of kernel dof ``i``. For each kernel row ``(C, a)`` that
     has a non-zero entry, ``T[g, D nl + m] = w sum_b K[(C, a), (D, b)] phi_p[b, m]`` over all ``D``
     at once (``g`` in the order of first appearance, its row in ``rows``), then
-    ``Ae[C, l, :] += phi_p[a, l] T[g, :]``: ``Ae`` seen as ``(bs, nl, bs nl)``, a row of ``bs nl``
-    contiguous entries per ``(C, l)`` (the inner loop vectorises).
+    ``Ae[C, l, :] += phi_p[a, l] T[g, :]``: ``Ae`` is ``(bs, nl, width)``, a row of ``bs nl``
+    contiguous entries per ``(C, l)`` padded to ``width`` (the inner loop vectorises whole).
     """
     nk = comp.shape[0]
     nl = phi_p.shape[1]
@@ -99,8 +99,8 @@ def _dof_jets(perm):
 
 @numba.njit(cache=True)
 def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
-    """Add the element matrix of one cell into the CSR values (see fempm.matrix); ``offsets``: room
-    for the column offsets of one row's functions."""
+    """Add the element matrix of one cell, ``Ae[C, l, D nl + m]``, into the CSR values (see
+    fempm.matrix); ``offsets``: room for the column offsets of one row's functions."""
     bs, nl = Ae.shape[0], Ae.shape[1]
     k = k1 - 1
     width = 2 * k + 1
@@ -114,12 +114,15 @@ def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
             for m in range(nl):
                 base = row + offsets[m]
                 for D in range(bs):
-                    values[base + D] += Ae[C, l, D, m]
+                    values[base + D] += Ae[C, l, D * nl + m]
 
 
 @numba.njit(cache=True)
 def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun, coeffs, consts, perm, h):
-    """Add the particle-quadrature matrix of a bilinear form into CSR ``values``."""
+    """Add the particle-quadrature matrix of a bilinear form into CSR ``values``.
+
+    The element matrix's rows are padded to a multiple of 4 entries: the vectorised inner loop of
+    :func:`_add_particle` then has no scalar remainder."""
     n = cell.shape[0]
     bs, nq = perm.shape
     nl = phi.shape[2]
@@ -127,10 +130,10 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     k1 = int(np.sqrt(nl) + 0.5)
     K = np.zeros(nk * nk)
     comp, jet = _dof_jets(perm)
-    T = np.zeros((nk, bs * nl))
+    width = (bs * nl + 3) // 4 * 4
+    T = np.zeros((nk, width))
     rows = np.empty(nk, dtype=np.int64)
-    Ae = np.zeros((bs, nl, bs, nl))
-    Ae_rows = Ae.reshape(bs, nl, bs * nl)
+    Ae = np.zeros((bs, nl, width))
     offsets = np.empty(nl, dtype=np.int64)
     coords = np.zeros(12)
     cur = -1
@@ -146,7 +149,7 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
         K[:] = 0.0
         _jet_cell(x[p], h, coords)
         kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae_rows)
+        _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae)
     return 0
 
 
