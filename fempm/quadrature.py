@@ -73,10 +73,12 @@ def _cpu_tag() -> str:
 
 
 # the kernels are compiled on the machine that runs them: its vector instructions, but no fused
-# multiply-adds (-ffp-contract=off), so the kernels' numbers are those of a plain -O2 build. FFCx's
-# cache is keyed by these arguments, not by the CPU: the CPU's tag in a (unused) define keeps a
-# kernel built for one CPU from being loaded on another that shares the cache (an HPC home folder)
-_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
+# multiply-adds (-ffp-contract=off), so the kernels' numbers are those of a plain build. -O3 unrolls
+# FFCx's loops over the jet element's tables (mostly zeros and ones) and folds them; without
+# -ffast-math it may not change a result. FFCx's cache is keyed by these arguments, not by the CPU:
+# the CPU's tag in a (unused) define keeps a kernel built for one CPU from being loaded on another
+# that shares the cache (an HPC home folder)
+_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O3", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
 _REGULAR, _LUMPED = 0, 1  # subdomain ids of s.dx and s.dx_lumped on the jet cell
 _KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
 _ffi = FFI()
