@@ -118,17 +118,22 @@ def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
 
 
 @numba.njit(cache=True)
-def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun, coeffs, consts, perm, h):
-    """Add the particle-quadrature matrix of a bilinear form into CSR ``values``.
+def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun, coeffs, columns, consts, perm, h,
+                    vector=None):
+    """Add the particle-quadrature matrix of a bilinear form into CSR ``values``; the kernel's
+    coefficients of particle ``p`` are ``coeffs[p, columns]``.
 
-    The element matrix's rows are padded to a multiple of 4 entries: the vectorised inner loop of
-    :func:`_add_particle` then has no scalar remainder."""
+    ``vector``: None, or ``(kernel, out, consts, perm)`` of a linear form whose kernel reads
+    ``coeffs[p]`` whole (the residual whose Jacobian this is), added into ``out`` in the same pass
+    as :func:`assemble_vector` would. The element matrix's rows are padded to a multiple of 4
+    entries: the vectorised inner loop of :func:`_add_particle` then has no scalar remainder."""
     n = cell.shape[0]
     bs, nq = perm.shape
     nl = phi.shape[2]
     nk = bs * nq
     k1 = int(np.sqrt(nl) + 0.5)
     K = np.zeros(nk * nk)
+    w = np.empty(columns.shape[0])
     comp, jet = _dof_jets(perm)
     width = (bs * nl + 3) // 4 * 4
     T = np.zeros((nk, width))
@@ -136,6 +141,8 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     Ae = np.zeros((bs, nl, width))
     offsets = np.empty(nl, dtype=np.int64)
     coords = np.zeros(12)
+    if vector is not None:
+        Kv = np.zeros(vector[3].size)
     cur = -1
     for p in range(n + 1):
         c = cell[p] if p < n else -1
@@ -146,32 +153,42 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
                 break
             Ae[:] = 0.0
             cur = c
-        K[:] = 0.0
         _jet_cell(x[p], h, coords)
-        kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+        if vector is not None:
+            Kv[:] = 0.0
+            vector[0](Kv.ctypes.data, coeffs[p].ctypes.data, vector[2].ctypes.data, coords.ctypes.data, 0, 0, 0)
+            _add_vector_particle(Kv, weight[p], phi[p], lfun[p], vector[3], vector[1])
+        for i in range(columns.shape[0]):
+            w[i] = coeffs[p, columns[i]]
+        K[:] = 0.0
+        kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
         _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae)
     return 0
 
 
 @numba.njit(cache=True, fastmath=True)
+def _add_vector_particle(K, w, phi_p, lfun_p, perm, out):
+    """``out[(l, C)] += w sum_a phi_p[a, l] K[(C, a)]``: one particle's part of a vector."""
+    bs, nq = perm.shape
+    nl = phi_p.shape[1]
+    for C in range(bs):
+        for l in range(nl):
+            s = 0.0
+            for a in range(nq):
+                s += phi_p[a, l] * K[perm[C, a]]
+            out[bs * lfun_p[l] + C] += w * s
+
+
+@numba.njit(cache=True, fastmath=True)
 def assemble_vector(kernel, out, x, cell, weight, phi, lfun, coeffs, consts, perm, h):
     """Add the particle-quadrature vector of a linear form into ``out`` (local dofs)."""
-    n = cell.shape[0]
-    bs, nq = perm.shape
-    nl = phi.shape[2]
-    K = np.zeros(bs * nq)
+    K = np.zeros(perm.size)
     coords = np.zeros(12)
-    for p in range(n):
+    for p in range(cell.shape[0]):
         K[:] = 0.0
         _jet_cell(x[p], h, coords)
         kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        w = weight[p]
-        for C in range(bs):
-            for l in range(nl):
-                s = 0.0
-                for a in range(nq):
-                    s += phi[p, a, l] * K[perm[C, a]]
-                out[bs * lfun[p, l] + C] += w * s
+        _add_vector_particle(K, weight[p], phi[p], lfun[p], perm, out)
     return 0
 
 
