@@ -577,9 +577,10 @@ class ParticleForm:
         theirs = {(kind, name): (offset, size) for kind, name, offset, size, _ in residual._packing._parts}
         columns = []
         for kind, name, _, size, _ in self._packing._parts:
-            if theirs.get((kind, name), (0, -1))[1] != size:
+            offset, their_size = theirs.get((kind, name), (0, None))
+            if their_size != size:
                 return None
-            columns.append(np.arange(theirs[kind, name][0], theirs[kind, name][0] + size))
+            columns.append(np.arange(offset, offset + size))
         return np.concatenate(columns) if columns else np.zeros(0, dtype=np.int64)
 
     def _zeroed_target(self, A: PETSc.Mat | None):
@@ -593,6 +594,7 @@ class ParticleForm:
         return target
 
     def _zeroed_vector(self, b: dolfinx.la.Vector | None) -> dolfinx.la.Vector:
+        """``b`` (a new vector of the space if None), zeroed."""
         if b is None:
             b = self.space.create_vector()
         b.array[:] = 0.0
@@ -608,8 +610,9 @@ class ParticleForm:
         target.mark_written(lfun)
 
     def _lumped_matrix(self, target, particles, lfun, weight, coeffs, slots, consts, sums=None):
-        """The ``dx_lumped`` part of the matrix; the particle fields are columns ``slots`` of ``coeffs``,
-        ``sums`` their nodal sums if already made (:meth:`_function_sums`)."""
+        """The ``dx_lumped`` part of the matrix. ``coeffs``: this form's packed coefficients, or for a part
+        affine in the particle fields any whose columns ``slots`` hold those fields (``sums``: their
+        nodal sums, if already made, :meth:`_function_sums`)."""
         if _LUMPED not in self._kernels:
             return
         lay, h = target.layout, self.space.grid.h
