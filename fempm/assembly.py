@@ -146,7 +146,7 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     cur = -1
     for p in range(n + 1):
         c = cell[p] if p < n else -1
-        if c != cur:
+        if c != cur or p == n:  # a new cell, or the end (also of no particles)
             if cur >= 0:
                 _add_to_csr(Ae, lfun[p - 1], k1, values, indptr, stencil, offsets)
             if p == n:
