@@ -52,8 +52,8 @@ def _add_particle(K, comp, jet, w, phi_p, T, rows, Ae):
     ``comp[i], jet[i]``: component and jet of kernel dof ``i``. For each kernel row ``(C, a)`` that
     has a non-zero entry, ``T[g, D nl + m] = w sum_b K[(C, a), (D, b)] phi_p[b, m]`` over all ``D``
     at once (``g`` in the order of first appearance, its row in ``rows``), then
-    ``Ae[C, l, :] += phi_p[a, l] T[g, :]``: ``Ae`` seen as ``(bs, nl, bs nl)``, a row of ``bs nl``
-    contiguous entries per ``(C, l)`` (the inner loop vectorises).
+    ``Ae[C, l, :] += phi_p[a, l] T[g, :]``: ``Ae`` is ``(bs, nl, width)``, a row of ``bs nl``
+    contiguous entries per ``(C, l)`` padded to ``width`` (the inner loop vectorises whole).
     """
     nk = comp.shape[0]
     nl = phi_p.shape[1]
@@ -99,8 +99,8 @@ def _dof_jets(perm):
 
 @numba.njit(cache=True)
 def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
-    """Add the element matrix of one cell into the CSR values (see fempm.matrix); ``offsets``: room
-    for the column offsets of one row's functions."""
+    """Add the element matrix of one cell, ``Ae[C, l, D nl + m]``, into the CSR values (see
+    fempm.matrix); ``offsets``: room for the column offsets of one row's functions."""
     bs, nl = Ae.shape[0], Ae.shape[1]
     k = k1 - 1
     width = 2 * k + 1
@@ -114,61 +114,81 @@ def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
             for m in range(nl):
                 base = row + offsets[m]
                 for D in range(bs):
-                    values[base + D] += Ae[C, l, D, m]
+                    values[base + D] += Ae[C, l, D * nl + m]
 
 
 @numba.njit(cache=True)
-def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun, coeffs, consts, perm, h):
-    """Add the particle-quadrature matrix of a bilinear form into CSR ``values``."""
+def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun, coeffs, columns, consts, perm, h,
+                    vector=None):
+    """Add the particle-quadrature matrix of a bilinear form into CSR ``values``; the kernel's
+    coefficients of particle ``p`` are ``coeffs[p, columns]``.
+
+    ``vector``: None, or ``(kernel, out, consts, perm)`` of a linear form whose kernel reads
+    ``coeffs[p]`` whole (the residual whose Jacobian this is), added into ``out`` in the same pass
+    as :func:`assemble_vector` would. The element matrix's rows are padded to a multiple of 4
+    entries: the vectorised inner loop of :func:`_add_particle` then has no scalar remainder."""
     n = cell.shape[0]
     bs, nq = perm.shape
     nl = phi.shape[2]
     nk = bs * nq
     k1 = int(np.sqrt(nl) + 0.5)
     K = np.zeros(nk * nk)
+    w = np.empty(columns.shape[0])
     comp, jet = _dof_jets(perm)
-    T = np.zeros((nk, bs * nl))
+    width = (bs * nl + 3) // 4 * 4
+    T = np.zeros((nk, width))
     rows = np.empty(nk, dtype=np.int64)
-    Ae = np.zeros((bs, nl, bs, nl))
-    Ae_rows = Ae.reshape(bs, nl, bs * nl)
+    Ae = np.zeros((bs, nl, width))
     offsets = np.empty(nl, dtype=np.int64)
     coords = np.zeros(12)
+    if vector is not None:
+        Kv = np.zeros(vector[3].size)
     cur = -1
     for p in range(n + 1):
         c = cell[p] if p < n else -1
-        if c != cur:
+        if c != cur or p == n:  # a new cell, or the end (also of no particles)
             if cur >= 0:
                 _add_to_csr(Ae, lfun[p - 1], k1, values, indptr, stencil, offsets)
             if p == n:
                 break
             Ae[:] = 0.0
             cur = c
-        K[:] = 0.0
         _jet_cell(x[p], h, coords)
-        kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae_rows)
+        if vector is not None:
+            Kv[:] = 0.0
+            vector[0](Kv.ctypes.data, coeffs[p].ctypes.data, vector[2].ctypes.data, coords.ctypes.data, 0, 0, 0)
+            _add_vector_particle(Kv, weight[p], phi[p], lfun[p], vector[3], vector[1])
+        for i in range(columns.shape[0]):
+            w[i] = coeffs[p, columns[i]]
+        K[:] = 0.0
+        kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+        _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae)
     return 0
+
+
+@numba.njit(cache=True, fastmath=True)
+def _add_vector_particle(K, w, phi_p, lfun_p, perm, out):
+    """``out[(l, C)] += w sum_a phi_p[a, l] K[(C, a)]``: one particle's part of a vector."""
+    bs, nq = perm.shape
+    nl = phi_p.shape[1]
+    for C in range(bs):
+        for l in range(nl):
+            s = 0.0
+            for a in range(nq):
+                s += phi_p[a, l] * K[perm[C, a]]
+            out[bs * lfun_p[l] + C] += w * s
 
 
 @numba.njit(cache=True, fastmath=True)
 def assemble_vector(kernel, out, x, cell, weight, phi, lfun, coeffs, consts, perm, h):
     """Add the particle-quadrature vector of a linear form into ``out`` (local dofs)."""
-    n = cell.shape[0]
-    bs, nq = perm.shape
-    nl = phi.shape[2]
-    K = np.zeros(bs * nq)
+    K = np.zeros(perm.size)
     coords = np.zeros(12)
-    for p in range(n):
+    for p in range(cell.shape[0]):
         K[:] = 0.0
         _jet_cell(x[p], h, coords)
         kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        w = weight[p]
-        for C in range(bs):
-            for l in range(nl):
-                s = 0.0
-                for a in range(nq):
-                    s += phi[p, a, l] * K[perm[C, a]]
-                out[bs * lfun[p, l] + C] += w * s
+        _add_vector_particle(K, weight[p], phi[p], lfun[p], perm, out)
     return 0
 
 
@@ -318,9 +338,10 @@ def assemble_scalar(kernel, x, weight, coeffs, consts, h):
 
 
 @numba.njit(cache=True)
-def pack_jets(phi, lfun, values, index, offset, out):
-    """``out[p, offset + index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: the jets of a
-    grid function at the particles, written where a form's kernel reads them."""
+def pack_jets(phi, lfun, values, index, out):
+    """``out[p, index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: the jets of grid functions
+    (their coefficients side by side in ``values``) at the particles, written where a form's kernel
+    reads them."""
     n, nq, nl = phi.shape
     bs = values.shape[1]
     local = np.empty((bs, nl))
@@ -334,7 +355,7 @@ def pack_jets(phi, lfun, values, index, offset, out):
                 s = 0.0
                 for l in range(nl):
                     s += phi[p, a, l] * local[c, l]
-                out[p, offset + index[c, a]] = s
+                out[p, index[c, a]] = s
 
 
 @numba.njit(cache=True)

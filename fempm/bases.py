@@ -47,9 +47,12 @@ def jet_indices(order: int) -> list[tuple[int, int]]:
 
 
 @numba.njit(cache=True)
-def _poly_derivatives(c, xi, order, out):
-    """Values and derivatives up to ``order`` at ``xi`` of polynomials ``c[a, m]``."""
+def _poly_derivatives(c, xi, order, powers, out):
+    """Values and derivatives up to ``order`` at ``xi`` of polynomials ``c[a, m]``; ``powers``: room
+    for ``xi ** m``, taken once for all the polynomials."""
     n_fun, n_coef = c.shape
+    for m in range(n_coef):
+        powers[m] = xi ** m
     for a in range(n_fun):
         for d in range(order + 1):
             s = 0.0
@@ -57,7 +60,7 @@ def _poly_derivatives(c, xi, order, out):
                 f = 1.0
                 for t in range(d):
                     f *= m - t
-                s += f * c[a, m] * xi ** (m - d)
+                s += f * c[a, m] * powers[m - d]
             out[d, a] = s
 
 
@@ -70,11 +73,12 @@ def _tabulate(cells, xi, nx, cx, cy, jets, out):
         order = max(order, jets[q, 0] + jets[q, 1])
     vx = np.empty((order + 1, k1))
     vy = np.empty((order + 1, k1))
+    powers = np.empty(cx.shape[2])
     for p in range(cells.shape[0]):
         i = cells[p] % nx
         j = cells[p] // nx
-        _poly_derivatives(cx[i], xi[p, 0], order, vx)
-        _poly_derivatives(cy[j], xi[p, 1], order, vy)
+        _poly_derivatives(cx[i], xi[p, 0], order, powers, vx)
+        _poly_derivatives(cy[j], xi[p, 1], order, powers, vy)
         for q in range(jets.shape[0]):
             da, db = jets[q, 0], jets[q, 1]
             for b in range(k1):

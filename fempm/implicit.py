@@ -91,8 +91,8 @@ class ImplicitSolver(Stepper):
             free = self.project()
         self.system.solve(self.forms, free, self.region.matrix, self.particles)
         if self.walls.one_sided:  # one-sided walls: the next step's held set (fempm.walls)
-            self.walls.update(self.system.reaction(self.forms, self.particles), self.system.U.vector.array,
-                              self._reference_density, dt)
+            reaction = self.system.reaction(self.forms, self.particles, self.walls.normal)
+            self.walls.update(reaction, self.system.U.vector.array, self._reference_density, dt)
         with self.timings("update"):
             self.update()
         with self.timings("relocate"):

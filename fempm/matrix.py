@@ -141,16 +141,15 @@ def _zero_rows(written, indptr, bs, values):
 
 
 @numba.njit(cache=True)
-def _multiply_rows(written, indptr, columns, values, bs, x, y):
-    """``y = A x`` where only the rows of written functions hold values (``y`` zero elsewhere)."""
-    y[:] = 0.0
-    for f in range(written.shape[0]):
-        if written[f]:
-            for r in range(bs * f, bs * (f + 1)):
-                s = 0.0
-                for e in range(indptr[r], indptr[r + 1]):
-                    s += values[e] * x[columns[e]]
-                y[r] = s
+def _multiply_rows(written, indptr, columns, values, bs, x, rows, y):
+    """``y[i] = (A x)[rows[i]]``, zero for a row of a function not written (it holds no values)."""
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        s = 0.0
+        if written[r // bs]:
+            for e in range(indptr[r], indptr[r + 1]):
+                s += values[e] * x[columns[e]]
+        y[i] = s
 
 
 class GridMatrix:
@@ -193,14 +192,15 @@ class GridMatrix:
         if self._written is not None:
             _mark(np.ascontiguousarray(functions), self._written)
 
-    def multiply(self, x: np.ndarray) -> np.ndarray | None:
-        """``A x`` for the owned rows on one rank when the written rows are known (``x`` by global
-        dof); None otherwise (use PETSc)."""
+    def multiply(self, x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray | None:
+        """``A x`` at the owned ``rows`` (default all) on one rank when the written rows are known
+        (``x`` by global dof); None otherwise (use PETSc)."""
         if not self._shared or self._written is None:
             return None
-        y = np.empty(self.layout.num_owned_rows)
         lay = self.layout
-        _multiply_rows(self._written, lay.indptr, lay.columns, self.values, self.space.bs, x, y)
+        rows = np.arange(lay.num_owned_rows) if rows is None else np.asarray(rows, dtype=np.int64)
+        y = np.empty(len(rows))
+        _multiply_rows(self._written, lay.indptr, lay.columns, self.values, self.space.bs, x, rows, y)
         return y
 
     def finalize(self) -> PETSc.Mat:

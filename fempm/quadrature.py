@@ -73,10 +73,12 @@ def _cpu_tag() -> str:
 
 
 # the kernels are compiled on the machine that runs them: its vector instructions, but no fused
-# multiply-adds (-ffp-contract=off), so the kernels' numbers are those of a plain -O2 build. FFCx's
-# cache is keyed by these arguments, not by the CPU: the CPU's tag in a (unused) define keeps a
-# kernel built for one CPU from being loaded on another that shares the cache (an HPC home folder)
-_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O2", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
+# multiply-adds (-ffp-contract=off), so the kernels' numbers are those of a plain build. -O3 unrolls
+# FFCx's loops over the jet element's tables (mostly zeros and ones) and folds them; without
+# -ffast-math it may not change a result. FFCx's cache is keyed by these arguments, not by the CPU:
+# the CPU's tag in a (unused) define keeps a kernel built for one CPU from being loaded on another
+# that shares the cache (an HPC home folder)
+_JIT_OPTIONS = {"cffi_extra_compile_args": ["-O3", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
 _REGULAR, _LUMPED = 0, 1  # subdomain ids of s.dx and s.dx_lumped on the jet cell
 _KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
 _ffi = FFI()
@@ -361,22 +363,27 @@ class _Coefficients:
                 size = index.size
             self._parts.append((kind, name, offset, size, index))
             offset += size
-        self.width = offset
+        self.width = max(offset, 1)  # as wide as what pack returns
         self._nodal_positions, self._particle_slots = self._positions()
 
     def pack(self, particles, phi, lfun) -> np.ndarray:
-        """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets)."""
+        """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets): the
+        grid functions side by side, their jets in one pass over the particles."""
         n = len(particles)
         if not self._parts:
             return np.zeros((n, 1))
         out = np.empty((n, self.width))
+        columns, slots = [], []
         for kind, name, offset, size, index in self._parts:
             if kind == "particle":
                 out[:, offset: offset + size] = particles[name].reshape(n, size)
-            elif self.grid_functions[name].vector.array.any():
-                assembly.pack_jets(phi, lfun, self.grid_functions[name].values, index, offset, out)
+            elif self.grid_functions[name].values.any():
+                columns.append(self.grid_functions[name].values)
+                slots.append(offset + index)
             else:  # a function that is zero (U at the start of a step between walls at rest): zero jets
                 out[:, offset: offset + size] = 0.0
+        if columns:
+            assembly.pack_jets(phi, lfun, np.concatenate(columns, axis=1), np.concatenate(slots), out)
         return out
 
     def nodal_slots(self):
@@ -479,9 +486,9 @@ class ParticleForm:
         self._packing = _Coefficients(coefficients, symbols.used, self.grid_functions, target.jet_cell,
                                       {n: tuple(v) for n, v in symbols._particle_shapes.items()})
 
-    def _function_sums(self, phi0, lfun, weight, coeffs) -> np.ndarray:
-        """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks."""
-        slots = self._packing.particle_slots()
+    def _function_sums(self, phi0, lfun, weight, coeffs, slots) -> np.ndarray:
+        """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks; ``c_p`` the
+        particle fields, columns ``slots`` of ``coeffs``."""
         if self._nodal_sums is None:
             self._nodal_sums = dolfinx.la.vector(self.space.numbering.index_map, 1 + len(slots))
         sums = self._nodal_sums
@@ -511,63 +518,137 @@ class ParticleForm:
     def assemble_matrix(self, particles, A: PETSc.Mat | None = None) -> PETSc.Mat:
         """The matrix ``A_ij = sum_p V_p a(phi_j, phi_i)(x_p)``, assembled (zeroed first if given)."""
         self._require_rank(2)
+        target = self._zeroed_target(A)
+        phi, lfun, weight, coeffs, consts = self._particle_data(particles)
+        if _REGULAR in self._kernels:
+            self._regular_matrix(target, particles, phi, lfun, weight, coeffs, np.arange(coeffs.shape[1]), consts)
+        self._lumped_matrix(target, particles, lfun, weight, coeffs, self._packing.particle_slots(), consts)
+        return target.finalize()
+
+    def assemble_vector(self, particles, b: dolfinx.la.Vector | None = None) -> dolfinx.la.Vector:
+        """The vector ``b_i = sum_p V_p L(phi_i)(x_p)``; owned entries complete, ghosts zero."""
+        self._require_rank(1)
+        b = self._zeroed_vector(b)
+        phi, lfun, weight, coeffs, consts = self._particle_data(particles)
+        if _REGULAR in self._kernels:
+            assembly.assemble_vector(
+                self._kernels[_REGULAR], b.array, particles.x, particles.cell, weight, phi, lfun,
+                coeffs, consts, self._perm, self.space.grid.h,
+            )
+        self._lumped_vector(b, particles, lfun, weight, coeffs, consts)
+        b.scatter_reverse(dolfinx.la.InsertMode.add)
+        return b
+
+    def assemble_with(self, residual: ParticleForm, particles, A: PETSc.Mat | None = None,
+                      b: dolfinx.la.Vector | None = None) -> tuple[PETSc.Mat, dolfinx.la.Vector]:
+        """This bilinear form's matrix and the vector of ``residual``, a linear form whose coefficients
+        include this one's (the residual this form is the Jacobian of), in one pass over the particles.
+
+        The coefficients are packed once, the residual's: this form's kernel reads its own among them,
+        and a lumped part takes the residual's nodal sums. Two passes (:meth:`assemble_vector`, then
+        :meth:`assemble_matrix`) where that cannot be: another space or jet order, a coefficient or
+        a regular integral one of them lacks, or a lumped part not affine in the particle fields.
+        """
+        self._require_rank(2)
+        columns = self._columns_in(residual)
+        if columns is None:
+            b = residual.assemble_vector(particles, b)
+            return self.assemble_matrix(particles, A), b
+        target, b = self._zeroed_target(A), residual._zeroed_vector(b)
+        phi, lfun, weight, coeffs, consts_r = residual._particle_data(particles)
+        consts = _constant_array(self.constants, self._constant_names)
+        vector = (residual._kernels[_REGULAR], b.array, consts_r, residual._perm)
+        self._regular_matrix(target, particles, phi, lfun, weight, coeffs, columns, consts, vector)
+        sums = residual._lumped_vector(b, particles, lfun, weight, coeffs, consts_r)
+        slots = columns[self._packing.particle_slots()]
+        shared = sums is not None and np.array_equal(slots, residual._packing.particle_slots())
+        self._lumped_matrix(target, particles, lfun, weight, coeffs, slots, consts, sums if shared else None)
+        b.scatter_reverse(dolfinx.la.InsertMode.add)
+        return target.finalize(), b
+
+    def _columns_in(self, residual) -> np.ndarray | None:
+        """Where this form's packed coefficients sit among ``residual``'s, if one pass can assemble
+        both (see :meth:`assemble_with`); else None."""
+        if (not isinstance(residual, ParticleForm) or residual.rank != 1 or residual.space is not self.space
+                or residual.order != self.order or _REGULAR not in self._kernels
+                or _REGULAR not in residual._kernels
+                or any(_LUMPED in form._kernels and not form._lumped_affine for form in (self, residual))):
+            return None
+        theirs = {(kind, name): (offset, size) for kind, name, offset, size, _ in residual._packing._parts}
+        columns = []
+        for kind, name, _, size, _ in self._packing._parts:
+            offset, their_size = theirs.get((kind, name), (0, None))
+            if their_size != size:
+                return None
+            columns.append(np.arange(offset, offset + size))
+        return np.concatenate(columns) if columns else np.zeros(0, dtype=np.int64)
+
+    def _zeroed_target(self, A: PETSc.Mat | None):
+        """The grid matrix behind ``A`` (a new one if None), checked against the space and zeroed."""
         if A is None:
             A = create_matrix(self.space)
         target = grid_matrix(A)
         if target.space is not self.space and target.layout is not layout(self.space):
             raise InputError("the matrix was created by another space than the form's")
         target.zero()
-        phi, lfun, weight, coeffs, consts = self._particle_data(particles)
-        lay, h = target.layout, self.space.grid.h
-        if _REGULAR in self._kernels:
-            assembly.assemble_matrix(
-                self._kernels[_REGULAR], target.values, lay.indptr, lay.stencil, particles.x,
-                particles.cell, weight, phi, lfun, coeffs, consts, self._perm, h,
-            )
+        return target
+
+    def _zeroed_vector(self, b: dolfinx.la.Vector | None) -> dolfinx.la.Vector:
+        """``b`` (a new vector of the space if None), zeroed."""
+        if b is None:
+            b = self.space.create_vector()
+        b.array[:] = 0.0
+        return b
+
+    def _regular_matrix(self, target, particles, phi, lfun, weight, coeffs, columns, consts, vector=None):
+        """The ``dx`` part of the matrix (and of ``vector``'s form, see :func:`fempm.assembly.assemble_matrix`)."""
+        lay = target.layout
+        assembly.assemble_matrix(
+            self._kernels[_REGULAR], target.values, lay.indptr, lay.stencil, particles.x, particles.cell,
+            weight, phi, lfun, coeffs, columns, consts, self._perm, self.space.grid.h, vector,
+        )
         target.mark_written(lfun)
-        if _LUMPED in self._kernels and self._lumped_affine:
-            sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs)
+
+    def _lumped_matrix(self, target, particles, lfun, weight, coeffs, slots, consts, sums=None):
+        """The ``dx_lumped`` part of the matrix. ``coeffs``: this form's packed coefficients, or for a part
+        affine in the particle fields any whose columns ``slots`` hold those fields (``sums``: their
+        nodal sums, if already made, :meth:`_function_sums`)."""
+        if _LUMPED not in self._kernels:
+            return
+        lay, h = target.layout, self.space.grid.h
+        if self._lumped_affine:
+            if sums is None:
+                sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs, slots)
             target.mark_written(np.flatnonzero(sums[: self.space.numbering.num_owned, 0] > 0.0))  # other ranks' too
             assembly.assemble_matrix_nodal_affine(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
                 sums, self.space.numbering.num_owned,
-                self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h, self._packing.nodal_slots(),
+                self._packing.particle_slots(), self._packing.width, consts, self._perm, h, self._packing.nodal_slots(),
             )
-        elif _LUMPED in self._kernels:
+        else:
             assembly.assemble_matrix_lumped(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil, particles.x, weight,
                 self._basis_values(particles), lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(),
                 self._lumped_per_function,
             )
-        return target.finalize()
 
-    def assemble_vector(self, particles, b: dolfinx.la.Vector | None = None) -> dolfinx.la.Vector:
-        """The vector ``b_i = sum_p V_p L(phi_i)(x_p)``; owned entries complete, ghosts zero."""
-        self._require_rank(1)
-        if b is None:
-            b = self.space.create_vector()
-        b.array[:] = 0.0
-        phi, lfun, weight, coeffs, consts = self._particle_data(particles)
-        h = self.space.grid.h
-        if _REGULAR in self._kernels:
-            assembly.assemble_vector(
-                self._kernels[_REGULAR], b.array, particles.x, particles.cell, weight, phi, lfun,
-                coeffs, consts, self._perm, h,
-            )
-        if _LUMPED in self._kernels and self._lumped_affine:
-            sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs)
-            assembly.assemble_vector_nodal_affine(
-                self._kernels[_LUMPED], b.array, sums,
-                self.space.numbering.num_owned, self._packing.particle_slots(), coeffs.shape[1], consts, self._perm, h,
-                self._packing.nodal_slots(),
-            )
-        elif _LUMPED in self._kernels:
+    def _lumped_vector(self, b, particles, lfun, weight, coeffs, consts) -> np.ndarray | None:
+        """The ``dx_lumped`` part of the vector; the nodal sums it made (None: none)."""
+        if _LUMPED not in self._kernels:
+            return None
+        h, slots = self.space.grid.h, self._packing.particle_slots()
+        if not self._lumped_affine:
             assembly.assemble_vector_lumped(
                 self._kernels[_LUMPED], b.array, particles.x, weight, self._basis_values(particles),
                 lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(), self._lumped_per_function,
             )
-        b.scatter_reverse(dolfinx.la.InsertMode.add)
-        return b
+            return None
+        sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs, slots)
+        assembly.assemble_vector_nodal_affine(
+            self._kernels[_LUMPED], b.array, sums, self.space.numbering.num_owned, slots, self._packing.width,
+            consts, self._perm, h, self._packing.nodal_slots(),
+        )
+        return sums
 
     def assemble_scalar(self, particles) -> float:
         """``sum_p V_p f(x_p)`` over the particles of all ranks."""

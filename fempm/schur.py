@@ -173,6 +173,8 @@ def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, di
         for k in range(p11[i], p11[i + 1]):
             acc[c11[k]] += v11[k]
         for k in range(p10[i], p10[i + 1], 2):
+            if v10[k] == 0.0 and v10[k + 1] == 0.0:  # a pair or a row not free this solve: adds nothing
+                continue
             m = c10[k]
             s0 = v10[k] / diagonal[m]
             s1 = v10[k + 1] / diagonal[m + 1]

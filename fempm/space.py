@@ -206,11 +206,13 @@ class GridFunction:
         self.space = space
         self.name = name
         self.vector = space.create_vector()
+        # the vector's storage never moves: one view, not a new one per access (DOLFINx makes one each time)
+        self._values = self.vector.array.reshape(-1, space.bs)
 
     @property
     def values(self) -> np.ndarray:
         """View of the local coefficients, shape ``(num_local_functions, bs)``."""
-        return self.vector.array.reshape(-1, self.space.bs)
+        return self._values
 
     def field(self, name: str) -> np.ndarray:
         """View of the components of one field, shape ``(num_local_functions, ncomp)``."""

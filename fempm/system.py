@@ -19,6 +19,7 @@ from fempm.bases import Basis
 from fempm.formsfile import load_forms
 from fempm.linear import LinearSolver, SolveFailed
 from fempm.options import Controls, Physics, Scheme
+from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space
 from fempm.timing import PhaseTimes
 from fempm.walls import FreeDofs, Walls
@@ -41,6 +42,14 @@ class StepForms:
         unknown = next(c for c, (kind, name) in self.jacobian.symbols.used.items() if name == "U")
         expanded = ufl.algorithms.expand_derivatives(self.jacobian.ufl_form)
         self.linear = unknown not in expanded.coefficients()
+
+    def assemble(self, particles, J=None, R=None):
+        """The Jacobian and the residual (into ``J`` and ``R`` if given), in one pass over the particles
+        for particle forms (:meth:`fempm.quadrature.ParticleForm.assemble_with`)."""
+        if isinstance(self.jacobian, ParticleForm):
+            return self.jacobian.assemble_with(self.residual, particles, J, R)
+        R = self.residual.assemble_vector(particles, R)
+        return self.jacobian.assemble_matrix(particles, J), R
 
 
 class GridSystem:
@@ -126,13 +135,15 @@ class GridSystem:
         r0 = norm = None
         for iteration in range(c.newton_max_it):
             with self.timings("assemble"):
-                R = forms.residual.assemble_vector(particles, self._R)
-                if not forms.linear:
+                if forms.linear:  # one iteration: no norm to check first
+                    J, R = forms.assemble(particles, J, self._R)
+                else:
+                    R = forms.residual.assemble_vector(particles, self._R)
                     norm = self._free_norm(R)
                     r0 = norm if r0 is None else r0
                     if iteration > 0 and norm <= c.newton_rtol * max(r0, 1e-300):
                         break
-                J = forms.jacobian.assemble_matrix(particles, J)
+                    J = forms.jacobian.assemble_matrix(particles, J)
             if self._delta_of is not J:  # a new matrix (the first, or a widened region)
                 self._delta, self._delta_of = J.createVecLeft(), J
             with self.timings("solve"):
@@ -149,21 +160,21 @@ class GridSystem:
             raise SolveFailed(f"Newton did not converge in {c.newton_max_it} iterations "
                               f"(|R| = {norm:.3e}, |R0| = {r0:.3e})")
 
-    def reaction(self, forms: StepForms, particles=None) -> np.ndarray:
-        """The residual ``R(U)`` of the solved step at the owned dofs: on a held dof the force its
-        constraint exerts (one-sided walls, :meth:`fempm.walls.Walls.update`). For forms affine in
-        U ``R(U_0) + J delta`` from the solve's own vectors, else assembled again."""
-        n = self.space.num_owned_dofs
+    def reaction(self, forms: StepForms, particles=None, rows: np.ndarray | None = None) -> np.ndarray:
+        """The residual ``R(U)`` of the solved step at the owned dofs ``rows`` (default all): on a held
+        dof the force its constraint exerts (one-sided walls, :meth:`fempm.walls.Walls.update`). For
+        forms affine in U ``R(U_0) + J delta`` from the solve's own vectors, else assembled again."""
+        rows = np.arange(self.space.num_owned_dofs) if rows is None else np.asarray(rows, dtype=np.int64)
         if not forms.linear:
-            return forms.residual.assemble_vector(particles, self._R).array[:n].copy()
+            return forms.residual.assemble_vector(particles, self._R).array[rows]
         # the solve scaled R(U_0) by -1; delta = U - U_0
         gm = self._delta_of.getAttr("fempm_grid_matrix")
-        product = gm.multiply(self._delta.getArray(readonly=True)) if gm is not None else None
+        product = gm.multiply(self._delta.getArray(readonly=True), rows) if gm is not None else None
         if product is None:
-            product = self._delta_of.createVecLeft()
-            self._delta_of.mult(self._delta, product)
-            product = product.getArray(readonly=True)
-        return product[:n] - self._R.array[:n]
+            whole = self._delta_of.createVecLeft()
+            self._delta_of.mult(self._delta, whole)
+            product = whole.getArray(readonly=True)[rows]
+        return product - self._R.array[rows]
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]

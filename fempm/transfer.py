@@ -186,6 +186,8 @@ def function_nodes(space: Space) -> np.ndarray:
     ``sum_i N_i(x) x_i = x`` everywhere (the bases reproduce linear fields with these
     coefficients), which makes affine P2G and G2P exact on affine fields and
     ``sum_i N_i(x_p) (x_i - x_p) = 0``, on which the conservation of momentum rests.
+
+    Kept on the basis, whose spaces share one numbering (read-only: every transfer reads it).
     """
     basis = space.basis
     cached = getattr(basis, "_function_nodes", None)
@@ -198,10 +200,12 @@ def function_nodes(space: Space) -> np.ndarray:
 
         gx, gy = greville(grid.nx, float(grid.last[0])), greville(grid.ny, float(grid.last[1]))
         f = np.arange(basis.num_functions)
-        cached = np.column_stack([grid.lower[0] + grid.h * gx[f % basis.nfx],
-                                  grid.lower[1] + grid.h * gy[f // basis.nfx]])
+        nodes = np.column_stack([grid.lower[0] + grid.h * gx[f % basis.nfx],
+                                 grid.lower[1] + grid.h * gy[f // basis.nfx]])
+        cached = np.ascontiguousarray(nodes[space.numbering.local_functions])
+        cached.setflags(write=False)
         basis._function_nodes = cached
-    return np.ascontiguousarray(cached[space.numbering.local_functions])
+    return cached
 
 
 @numba.njit(cache=True)

@@ -56,6 +56,8 @@ class Walls:
         values: the velocity held on each: zero, or a moving wall's tangential speed (on dofs no
             side at rest also holds).
         positions: the held dofs as positions among this rank's owned dofs.
+        normal: the contact dofs, the normal ones of slip and no-slip sides at rest (positions among
+            the owned dofs): the dofs :meth:`update` needs the reaction at.
         stops: particle displacements cut at an impermeable side so far (see :meth:`keep_inside`).
         one_sided: whether :meth:`start_step` releases wall dofs (see the module); False: two-sided.
         released: contact dofs released so far (counted over the steps, this rank).
@@ -157,8 +159,8 @@ class Walls:
         (``R n`` above the force tolerance) released, free dofs displaced into the wall (beyond
         the motion tolerance) held (see :meth:`tolerances`).
 
-        ``reaction``: the residual at the owned dofs at the solution; ``displacement``: the
-        solved ``du`` at the owned dofs.
+        ``reaction``: the residual at the solution at the contact dofs (:attr:`normal`, positions among
+        the owned dofs); ``displacement``: the solved ``du`` at the owned dofs.
         """
         if not self.one_sided or self.space.comm.allreduce(len(self.normal)) == 0:
             return
@@ -166,7 +168,7 @@ class Walls:
             self._gather_state()
             return
         force, motion = self.tolerances(density, dt)
-        pull = self.active & (reaction[self.normal] * self.sign > force)
+        pull = self.active & (reaction * self.sign > force)
         enter = ~self.active & (displacement[self.normal] * self.sign > motion)
         self.active[pull] = False
         self.active[enter] = True

@@ -272,3 +272,40 @@ def test_lumped_quadrature_of_an_integrand_not_affine_in_particle_fields(comm, B
     owned = space.numbering.num_owned
     diagonal = A.getDiagonal().getArray().reshape(-1, 3)
     np.testing.assert_allclose(diagonal[:, 0], expected.values[:owned, 0], rtol=1e-13)
+
+
+def _values(A):
+    from fempm.matrix import grid_matrix
+
+    return grid_matrix(A).values.copy()
+
+
+@pytest.mark.mpi
+def test_a_residual_and_its_jacobian_in_one_pass_as_in_two(comm):
+    """``assemble_with`` gives the matrix and vector of two passes bit for bit: the shipped forms of a
+    stepped dam break (one pass), and a linear form lacking the bilinear form's particle field (two)."""
+    from pathlib import Path
+
+    from fempm.scene import load_scene
+    from fempm.simulation import build_solver
+
+    solver = build_solver(load_scene(Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"), comm)
+    for _ in range(3):
+        solver.step()
+    forms, particles, A = solver.forms, solver.particles, solver.region.matrix
+    assert forms.jacobian._columns_in(forms.residual) is not None
+    b = forms.residual.assemble_vector(particles).array.copy()
+    two = _values(forms.jacobian.assemble_matrix(particles, A))
+    A, one_b = forms.jacobian.assemble_with(forms.residual, particles, A)
+    assert np.array_equal(_values(A), two) and np.array_equal(one_b.array, b)
+
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.2)
+    space = fempm.Space(fempm.BSpline2(grid), {"u": 2, "p": 1})
+    particles = random_particles(grid, [0, 2, 5, 1])
+    bilinear = fempm.ParticleForm(
+        lambda s: s.particle("density") * ufl.inner(s.trial[0], s.test[0]) * s.dx, space, particles)
+    linear = fempm.ParticleForm(lambda s: ufl.inner(ufl.as_vector((1.0, 0.0)), s.test[0]) * s.dx, space, particles)
+    assert bilinear._columns_in(linear) is None
+    A, b = bilinear.assemble_with(linear, particles)
+    assert np.array_equal(_values(A), _values(bilinear.assemble_matrix(particles)))
+    assert np.array_equal(b.array, linear.assemble_vector(particles).array)
