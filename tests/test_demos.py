@@ -79,6 +79,7 @@ def test_dambreak_short_run_writes_its_files_on_any_number_of_ranks(tmp_path, ra
     (["--dt", "0"], "command line: --dt: must be a number > 0"),
     (["--cells", "42"], "--cells: must be a positive multiple of 4"),
     (["-fempm_ksp_type", "preonly", "--bogus"], "unrecognised argument '--bogus'"),
+    (["--fixed-step", "--courant", "1"], "argument --courant: not allowed with argument --fixed-step"),
 ])
 def test_dambreak_bad_input_is_one_message_and_status_2(tmp_path, flags, message):
     out = ended(run_demo("dambreak", *flags, "--out", tmp_path / "out"), status=2)
