@@ -25,6 +25,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
+from fempm.cases import dambreak
 from fempm.restart import CHECKPOINT
 from fempm.scene import load_scene, to_toml
 from fempm.simulation import resume, run_scene
@@ -35,8 +36,8 @@ END = 0.06
 
 def _scene(folder, end=END, courant=None):
     scene = load_scene(SCENE, folder=folder, end_time=end)
-    time = replace(scene.time, courant=courant, dt=5e-3 if courant else 1e-3)  # None: the seed's fixed step
-    return replace(scene, time=time, output=replace(scene.output, particles_interval=0.01, grid_interval=0.02,
+    scene = replace(scene, time=replace(scene.time, courant=courant, dt=5e-3)) if courant else dambreak.at_fixed_step(scene)
+    return replace(scene, output=replace(scene.output, particles_interval=0.01, grid_interval=0.02,
                                                     snapshots=(min(end, 0.03),), checkpoint_interval=0.01,
                                                     progress=False))
 

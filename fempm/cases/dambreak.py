@@ -18,7 +18,7 @@ import argparse
 import sys
 import tomllib
 from collections.abc import Mapping
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from math import sqrt
 from pathlib import Path
 
@@ -28,12 +28,12 @@ from mpi4py import MPI
 from fempm import output, references
 from fempm.errors import InputError
 from fempm.explicit import ExplicitScheme, ExplicitSolver
-from fempm.options import Physics
+from fempm.options import Physics, Scheme
 from fempm.scene import Scene, parse_scene
 from fempm.simulation import build_material, check_folder
 
 __all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "TANK", "WIDTH", "add_flags", "changes",
-           "compare_front", "explicit_solver", "fixed_step", "flag_names", "front_measures", "petsc_options", "plot_front",
+           "at_fixed_step", "compare_front", "explicit_solver", "fixed_step", "flag_names", "front_measures", "petsc_options", "plot_front",
            "prepare_folder", "read_front", "scene", "stop"]
 
 #: the repository's scene (``scenes/`` is not installed with the package: a demo passes its own path)
@@ -42,6 +42,7 @@ WIDTH = references.DAMBREAK_COLUMN_WIDTH  #: L, the column's width, m
 HEIGHT = 2 * WIDTH  #: the column's height, m
 TANK = 4 * WIDTH  #: the square tank's side, m
 GRAVITY = references.GRAVITY  #: m/s^2
+SEED_DT = Scheme.dt  #: the seed's fixed step, 1 ms (the shipped scene's step adapts to the flow)
 FREE_FALL = sqrt(2 * GRAVITY * HEIGHT)  #: the column's free-fall speed, the flow's largest, m/s
 AUTO_SOUND_SPEED = 10 * FREE_FALL  #: the weakly compressible practice's artificial sound speed, m/s
 #: the outputs ``files=False`` leaves out: ParaView series, pictures, checkpoints
@@ -89,10 +90,14 @@ def scene(changes: Mapping[str, object] | None = None, files: bool = True, sourc
     return parse_scene(data, source="command line" if names else source, forms=own, names=names)
 
 
-def fixed_step(dt: float = 1e-3) -> dict[str, object]:
-    """The :func:`scene` changes of a fixed step ``dt`` (the scene's own adapts to the flow; the seed's
-    step is 1 ms)."""
+def fixed_step(dt: float = SEED_DT) -> dict[str, object]:
+    """The :func:`scene` changes of a fixed step ``dt`` (the scene's own adapts to the flow)."""
     return {"time.courant": None, "time.dt": dt}
+
+
+def at_fixed_step(scene_: Scene, dt: float = SEED_DT) -> Scene:
+    """``scene_`` with a fixed step ``dt`` instead of its own (:func:`fixed_step` for a scene object)."""
+    return replace(scene_, time=replace(scene_.time, courant=None, dt=dt))
 
 
 def flag_names(parser: argparse.ArgumentParser) -> dict[str, str]:

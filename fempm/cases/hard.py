@@ -43,7 +43,6 @@ from fempm.bases import BSpline2
 from fempm.cases import dambreak
 from fempm.grid import Grid
 from fempm.implicit import ImplicitSolver
-from fempm.options import Scheme
 from fempm.particles import Particles
 from fempm.scene import load_scene
 from fempm.simulation import build_solver
@@ -55,7 +54,7 @@ G = dambreak.GRAVITY
 TANK, H = dambreak.TANK, dambreak.HEIGHT
 CELLS = 40
 h = TANK / CELLS
-SEED_DT = Scheme.dt  # 1e-3 s
+SEED_DT = dambreak.SEED_DT
 FIELDS = ("x", "velocity", "acceleration", "pressure")
 
 
