@@ -98,7 +98,7 @@ class _GaussAssembly:
 
     def __init__(self, form: GaussForm):
         self.form = form
-        self.symbols, self.ufl_form = form.symbols, form.ufl_form
+        self.symbols, self.ufl_form, self.expanded_form = form.symbols, form.ufl_form, form.expanded_form
         self._matrix = None
 
     def assemble_vector(self, _particles, out):

@@ -12,7 +12,6 @@ from collections.abc import Callable
 
 import numpy as np
 import ufl
-import ufl.algorithms
 
 from fempm import newmark
 from fempm.bases import Basis
@@ -40,8 +39,7 @@ class StepForms:
         self.residual = compile(forms.residual)
         self.jacobian = compile(lambda s: ufl.derivative(forms.residual(s), s.grid("U")))
         unknown = next(c for c, (kind, name) in self.jacobian.symbols.used.items() if name == "U")
-        expanded = ufl.algorithms.expand_derivatives(self.jacobian.ufl_form)
-        self.linear = unknown not in expanded.coefficients()
+        self.linear = unknown not in self.jacobian.expanded_form.coefficients()
 
     def assemble(self, particles, J=None, R=None):
         """The Jacobian and the residual (into ``J`` and ``R`` if given), in one pass over the particles
