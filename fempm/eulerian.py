@@ -60,7 +60,8 @@ class EulerianSolver(Stepper):
         super().__init__(scheme.dt)
         self.basis, self.grid, self.density = basis, basis.grid, float(density)
         self.physics, self.scheme, self.controls = physics, scheme, controls
-        self.system = s = GridSystem(basis, physics, scheme, controls, convection=1.0, timings=self.timings)
+        self.system = s = GridSystem(basis, physics, scheme, controls, convection=1.0, timings=self.timings,
+                                    density=self.density)
         self.velocity, self.pressure = s.velocity, s.pressure
         self.acceleration = GridFunction(s.vector_space, "acceleration")
         particle_values = {"density": self.density, "velocity": s.fields["grid_velocity"],
@@ -97,7 +98,7 @@ class _GaussAssembly:
 
     def __init__(self, form: GaussForm):
         self.form = form
-        self.symbols, self.ufl_form = form.symbols, form.ufl_form
+        self.symbols, self.ufl_form, self.expanded_form = form.symbols, form.ufl_form, form.expanded_form
         self._matrix = None
 
     def assemble_vector(self, _particles, out):

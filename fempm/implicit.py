@@ -63,7 +63,9 @@ class ImplicitSolver(Stepper):
         if "pressure" not in particles.fields:
             particles.add_field("pressure")
         transfer.add_affine_fields(particles, scheme.transfer)
-        self.system = GridSystem(basis, physics, scheme, controls, convection=0.0, timings=self.timings)
+        self._reference_density = self.grid.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
+        self.system = GridSystem(basis, physics, scheme, controls, convection=0.0, timings=self.timings,
+                                 density=self._reference_density)
         self.walls, self.velocity, self.pressure = self.system.walls, self.system.velocity, self.system.pressure
         self.region = MatrixRegion(self.system.space, controls.matrix_region, particles)
         s = self.system
@@ -73,7 +75,6 @@ class ImplicitSolver(Stepper):
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
-        self._reference_density = self.grid.comm.allreduce(particles["density"].max(initial=0.0), op=MPI.MAX)
         self._density_error = DensityError(s.scalar_space)
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()

@@ -462,7 +462,7 @@ class ParticleForm:
                 raise InputError(f"fempm jets go to second derivatives; the form takes {needed}")
             order = needed
         self.order = order
-        self.ufl_form = form
+        self.ufl_form, self.expanded_form = form, expanded
         self.symbols = symbols
         # the kernel reads the constants the form holds, in the form's order: a constant
         # asked for but left out of the form (a term switched off) has no slot
@@ -701,6 +701,7 @@ class GaussForm:
         self.symbols = Symbols(target, space, shapes, self.grid_functions, self.constants)
         self.ufl_form = builder(self.symbols)
         _check_cell_integrals(self.ufl_form)
+        self.expanded_form = ufl.algorithms.expand_derivatives(self.ufl_form)
         self.rank = len(self.ufl_form.arguments())
         self._compiled = dolfinx.fem.form(self.ufl_form, jit_options=_JIT_OPTIONS)
         self._lagrange = target.space(space.fields)

@@ -12,7 +12,6 @@ from collections.abc import Callable
 
 import numpy as np
 import ufl
-import ufl.algorithms
 
 from fempm import newmark
 from fempm.bases import Basis
@@ -40,8 +39,7 @@ class StepForms:
         self.residual = compile(forms.residual)
         self.jacobian = compile(lambda s: ufl.derivative(forms.residual(s), s.grid("U")))
         unknown = next(c for c, (kind, name) in self.jacobian.symbols.used.items() if name == "U")
-        expanded = ufl.algorithms.expand_derivatives(self.jacobian.ufl_form)
-        self.linear = unknown not in expanded.coefficients()
+        self.linear = unknown not in self.jacobian.expanded_form.coefficients()
 
     def assemble(self, particles, J=None, R=None):
         """The Jacobian and the residual (into ``J`` and ``R`` if given), in one pass over the particles
@@ -60,6 +58,7 @@ class GridSystem:
         physics, scheme, controls: see :mod:`fempm.options`.
         convection: the constant ``convection`` of the forms: 1 on a fixed grid, 0 in the MPM
             (whose grid moves with the material for the step; the term is then left out).
+        density: the fluid's reference density, the forms' constant ``density``.
         timings: where the solve's phases (assemble, solve) add their wall time.
 
     Attributes:
@@ -73,7 +72,7 @@ class GridSystem:
     """
 
     def __init__(self, basis: Basis, physics: Physics, scheme: Scheme, controls: Controls, convection: float,
-                 timings: PhaseTimes):
+                 timings: PhaseTimes, density: float):
         self.basis, self.grid, self.comm = basis, basis.grid, basis.grid.comm
         self.physics, self.scheme, self.controls, self.timings = physics, scheme, controls, timings
         self.space = Space(basis, {"u": 2, "p": 1})
@@ -93,7 +92,7 @@ class GridSystem:
             "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
             "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.volume_share(scheme.dt), "pspg": float(scheme.pspg),
             "surface_aware": float(scheme.surface_aware),
-            "convection": float(convection),
+            "convection": float(convection), "density": float(density),
         }
         self.walls = Walls(self.space, physics)
         self.free = FreeDofs(self.space, self.walls)

@@ -18,7 +18,8 @@ What a form may use (see ``fempm.quadrature.Symbols``):
   ``grid_acceleration`` a_n (the particle values projected to the grid,
   ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2),
   ``density_error`` (what the volume correction removes, see :func:`continuity`);
-* constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``gravity``
+* constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``density`` (the
+  fluid's reference density), ``gravity``
   (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``surface_aware`` (1 or 0,
   its density error, see :func:`continuity`), ``pspg`` (1 or 0),
   ``convection`` (1 on a fixed grid, see :func:`convection`; 0 in the MPM, whose
@@ -37,13 +38,13 @@ and ``grid_acceleration`` the previous step's solution, and ``dx_lumped`` is ``d
 A term whose switch is zero when the form is compiled (``mu`` = 0, ``alpha`` = 0,
 ``pspg`` = 0, ``convection`` = 0) is left out of the form, so its kernel never computes it: forms are
 compiled once per run and these constants do not change during a run (see
-:func:`switched_on`).
+:func:`switched_on`); ``dt`` at compilation is the run's largest step.
 """
 
 import ufl
 
 from fempm import newmark
-from fempm.formsfile import switched_on  # a constant, or an expression of constants, non-zero now
+from fempm.formsfile import constant_value, switched_on  # a constant's value now; whether non-zero now
 from fempm.walls import SPEED_TOLERANCE  # motion slower than this times sqrt(|g| h) is rest
 
 
@@ -232,7 +233,8 @@ def pspg(s):
     pressure diagonal, so equal-order velocity and pressure work. The residual is whole,
     viscous part included (Tezduyar 1992), so the term vanishes on the exact solution
     (steady Poiseuille flow, where viscosity balances the body force, is then exact in
-    the B-spline space). The second derivatives are taken cell by cell (C^1 B-splines:
+    the B-spline space); where that part is negligible it is left out
+    (:func:`viscous_residual_matters`). The second derivatives are taken cell by cell (C^1 B-splines:
     exact; Q1: its mixed derivative only). The inertia is the step's mean acceleration
     ``(v_{n+1} - v_n) / dt``: with the trapezoidal rule the end-point ``a_{n+1}``
     alternates in sign from step to step, and fed into the pressure it grows a
@@ -248,12 +250,32 @@ def pspg(s):
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
     residual = rho * (v_new - v_n) / dt + ufl.grad(p) - rho * s.constant("gravity")
-    if switched_on(mu):
+    if switched_on(mu) and viscous_residual_matters(s):
         residual = residual - ufl.div(2 * mu * eps(v_new))
     carried = convection(s, v_new)
     if carried is not None:
         residual = residual + rho * carried
     return s.constant("pspg") * tau / rho * ufl.inner(ufl.grad(q), residual) * s.dx
+
+
+#: PSPG's residual leaves its viscous part out below this diffusion number nu dt / h^2 (see pspg)
+VISCOUS_RESIDUAL_MIN = 1.0e-3
+
+
+def viscous_residual_matters(s):
+    """Whether PSPG's residual takes its viscous part ``div(2 mu eps(v_{n+1}))``: the diffusion
+    number at compilation, with the run's largest step::
+
+        nu dt / h^2 >= VISCOUS_RESIDUAL_MIN,   nu = mu / density
+
+    Left out, the part would have moved the continuity rows by ``tau nu / h^2 <= nu T / (2 h^2)``
+    of their divergence (``tau <= T / 2``, :func:`pspg_tau`): below the threshold less than the
+    particle quadrature's own error. Taking it needs the second derivatives of the basis, whose
+    jets double the size of the kernels. Water on a centimetre grid lies far below the threshold;
+    slow viscous flows (Poiseuille, a 10 Pa s column) lie above it.
+    """
+    mu, dt, density = (constant_value(s.constant(name)) for name in ("mu", "dt", "density"))
+    return bool(mu * dt >= VISCOUS_RESIDUAL_MIN * density * s.h**2)
 
 
 def residual(s):

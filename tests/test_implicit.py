@@ -158,3 +158,12 @@ def test_a_matrix_on_the_water_region_gives_the_same_steps_as_one_on_the_grid():
         fronts[region], rebuilds[region] = np.array(front), solver.region.rebuilds
     assert rebuilds["grid"] == 0 and rebuilds["fluid"] >= 1
     np.testing.assert_allclose(fronts["fluid"], fronts["grid"], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("viscosity, order", [(1.0e-3, 1), (10.0, 2)])
+def test_pspg_takes_its_viscous_part_only_where_the_grid_diffusion_number_reaches_the_threshold(viscosity, order):
+    """Water on the shipped grid (nu dt / h^2 = 4.7e-5 at the 10 ms bound) needs first derivatives only; a
+    10 Pa s fluid on it (0.47) takes PSPG's viscous part, and with it second derivatives."""
+    scene = dambreak.scene({"fluid.viscosity": viscosity}, files=False)
+    forms = simulation.build_solver(scene).forms
+    assert (forms.residual.order, forms.jacobian.order) == (order, order)
