@@ -228,10 +228,16 @@ def test_a_long_run_settles_with_its_volume(full):
         # measured 2.509, 1.0, 0.0306 (from a_0 = 0: 1.791, 1.0, 0.0290; start-configuration divergence 1.962,
         # 1.0, 0.128; FLIP/PIC 2.713)
         assert_sound(o, 800, speed_ratio=2.52, energy_max=1.0 + EXACT, energy_rise=0.032)
-    # the layer: 68.3 mm after 5 s, still sloshing (from a_0 = 0 72.1 mm; start-configuration divergence
-    # 67.7 mm, FLIP/PIC 68.6 mm; a sloshing surface's snapshot moves with round-off, hence 3 % in CI); 73.9 mm
-    # after 40 s (from a_0 = 0 77.7 mm; FLIP/PIC 77.6; SETTLED_DEPTH = 73 mm)
-    assert o.surface_height == pytest.approx(bound(full, 0.0683, 0.0739), rel=bound(full, 0.03, 0.01))
+    # the layer: 68.3 mm after 5 s, still sloshing (67.4 mm without PSPG's viscous part; from a_0 = 0 72.1 mm;
+    # start-configuration divergence 67.7 mm, FLIP/PIC 68.6 mm; a sloshing surface's snapshot moves with
+    # round-off, hence 3 % in CI); after 40 s it still sloshes (fastest particle 0.27-0.33 m/s) and the snapshot
+    # read 73.9, 74.5 and 76.8 mm on codes whose layers agree (from a_0 = 0 77.7 mm; FLIP/PIC 77.6;
+    # SETTLED_DEPTH = 73 mm)
+    assert o.surface_height == pytest.approx(bound(full, 0.0683, 0.0739), rel=bound(full, 0.03, 0.05))
+    if full:  # the layer's mean depth over the last 5 s, twice its centroid's height: 77.05 mm (76.92 with
+        # PSPG's viscous part), std 1.1 mm over those seconds
+        t, centroid = o.history["t"], np.asarray(o.history["centroid"])
+        assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0770, rel=0.01)
     # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.264 at 5 s
     # (from a_0 = 0 0.277; start-configuration divergence 0.280)
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.29, 1.4 * SETTLED_DEPTH / hc.H)
