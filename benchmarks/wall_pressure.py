@@ -51,6 +51,7 @@ STUDY = [
     ("seed_step", "the seed's fixed step, dt 1e-3", dambreak.fixed_step(1e-3)),
     ("ppc9_seed_step", "3 × 3 per cell, dt 1e-3", {**dambreak.fixed_step(1e-3), "bodies.0.particles_per_cell": 9}),
     ("dt", "dt 5e-4", dambreak.fixed_step(5e-4)),
+    ("adaptive_between", "adaptive step, Courant 0.7, dt ≤ 1e-2", {"time.courant": 0.7}),
     ("adaptive_fast", "adaptive step, Courant 1, dt ≤ 1e-2", {"time.courant": 1.0}),
     ("fine", "80² cells", {"domain.cells": [80, 80]}),
     ("pic", "the seed's FLIP with 10 % PIC per step", {"solver.transfer": "flip", "solver.pic_blend": 0.1,
