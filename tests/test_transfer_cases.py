@@ -67,6 +67,18 @@ def test_taylor_green_at_64_cells():
 
 
 @pytest.mark.full
+@pytest.mark.xfail(strict=True, reason="over one turnover the energy drops from t ~ 0.25-0.45 as the particles' disorder grows: "
+                   "kinetic energy 0.696 at t = 1 (64², U dt/h = 0.4), a fitted loss of 0.43 per unit time (0.0051 over "
+                   "t <= 0.25; 32²: 0.78, 0.21; FLIP/PIC 64²: 0.708)")
+def test_taylor_green_over_one_turnover():
+    """nu = 1e-6, 64², U dt/h = 0.4, to t = 1: issue 11's 1 % per unit time over a whole turnover."""
+    result = vortices.taylor_green("affine-FLIP", 64, 0.4 / 64, 1e-6, end=1.0)
+    print(result)
+    assert result["status"] == "completed"
+    assert result["numerical"] < 0.01
+
+
+@pytest.mark.full
 def test_gresho_vortex_to_t_3():
     """64², t = 3 (issue 11's targets, KE within 1 % and angular momentum within 0.1 %, are not met by
     either transfer: the particles' disorder grows after t ~ 1); affine-FLIP loses less energy."""
