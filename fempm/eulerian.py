@@ -120,8 +120,12 @@ class _GaussAssembly:
 
     def __init__(self, form: GaussForm):
         self.form = form
-        self.symbols, self.ufl_form, self.expanded_form = form.symbols, form.ufl_form, form.expanded_form
+        self.symbols, self.ufl_form = form.symbols, form.ufl_form
         self._matrix = None
+
+    @property
+    def expanded_form(self):
+        return self.form.expanded_form
 
     def assemble_vector(self, _particles, out):
         b = self.form.assemble_vector()

@@ -32,6 +32,7 @@ velocity is the previous step's grid velocity).
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import platform
 from collections.abc import Callable, Mapping
@@ -701,7 +702,6 @@ class GaussForm:
         self.symbols = Symbols(target, space, shapes, self.grid_functions, self.constants)
         self.ufl_form = builder(self.symbols)
         _check_cell_integrals(self.ufl_form)
-        self.expanded_form = ufl.algorithms.expand_derivatives(self.ufl_form)
         self.rank = len(self.ufl_form.arguments())
         self._compiled = dolfinx.fem.form(self.ufl_form, jit_options=_JIT_OPTIONS)
         self._lagrange = target.space(space.fields)
@@ -713,6 +713,12 @@ class GaussForm:
                 self._grid_extraction[coefficient] = (gf, extraction_matrix(gf.space, coefficient.function_space))
         self._lagrange_matrix = None  # A_L of the last assembly, reused with ``out``
         self._fill_particle_values()
+
+    @functools.cached_property
+    def expanded_form(self):
+        """The form with its derivatives applied (made when first asked for: DOLFINx's compilation
+        does not need it)."""
+        return ufl.algorithms.expand_derivatives(self.ufl_form)
 
     def _fill_particle_values(self):
         for coefficient, (kind, name) in self.symbols.used.items():
