@@ -187,10 +187,14 @@ def momentum(s):
     return rho * ufl.inner(a_new - g, w) * s.dx_lumped + stress * s.dx
 
 
+#: crowding the volume correction leaves alone, a share of the density (see continuity)
+CROWDING_TOLERANCE = 2.0e-3
+
+
 def continuity(s):
     """Continuity with the volume correction (method.md eq. 3, after Asai et al. 2012)::
 
-        int q (J* div_x v_{n+1} - (alpha / rho) max(rho~ - rho, 0) / dt) dx
+        int q (J* div_x v_{n+1} - (alpha / rho) max(rho~ - rho (1 + CROWDING_TOLERANCE), 0) / dt) dx
 
     ``rho~`` is the smoothed density of eq. (2), ``rho~_i = sum_p W_i(x_p) m_p``,
     ``W_i = N_i / int N_i dx``: where particles crowd (rho~ > rho) the correction asks
@@ -199,7 +203,10 @@ def continuity(s):
     at a free surface rho~ < rho by construction (the basis functions reach into
     air), and the contraction asked there squeezes a column at rest instead of
     holding it (README, "Where fempm departs from method.md"). Crowding only, thinning
-    is never undone, and a free surface that moves swells.
+    is never undone, and a free surface that moves swells. Crowding within
+    ``CROWDING_TOLERANCE`` of the density is left alone: water at rest stirs its smoothed
+    density by that much, and an expansion asked for every such stir, never taken back,
+    swelled a column at rest.
 
     With ``surface_aware`` = 1 instead ``int q (div v_{n+1} - alpha e / dt) dx``, ``e`` the
     grid function ``density_error`` (``fempm.density.DensityError``): ``rho~ / rho - 1``,
@@ -218,7 +225,7 @@ def continuity(s):
         return q * expansion * s.dx
     if switched_on(s.constant("surface_aware")):
         return q * (expansion - alpha * s.grid("density_error") / dt) * s.dx
-    crowding = ufl.max_value(s.grid("smoothed_density") - rho, 0)
+    crowding = ufl.max_value(s.grid("smoothed_density") - rho * (1 + CROWDING_TOLERANCE), 0)
     return q * (expansion - alpha / rho * crowding / dt) * s.dx
 
 
