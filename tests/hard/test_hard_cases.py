@@ -63,21 +63,22 @@ def bound(full: bool, short: float, long: float) -> float:
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
 def test_dam_break_at_ten_times_the_seeds_step(full):
-    """dt = 1e-2 s: the advective CFL max |v| dt / h reaches 2.9 (at the seed's step 0.34); walls
+    """dt = 1e-2 s: the advective CFL max |v| dt / h reaches 2.9 (at the seed's step 0.33); walls
     stop displacements that would cross them. The energy error of the big step shows (3 % of
     the start regained in the sloshing; 13 % with the start configuration's divergence) but stays
     bounded, and the volume holds."""
     o = measured("dt-10x", full)
-    # measured 2.509, 1.0, 0.0306 (from a_0 = 0: 1.791, 1.0, 0.0290, the whole flow a half step late;
-    # start-configuration divergence 1.962, 1.0, 0.128; FLIP/PIC 2.713, 1.01225, 0.0845); the full version
-    # was not rerun with the end-of-step divergence
-    assert_sound(o, 800, speed_ratio=bound(full, 2.52, 2.73), energy_max=1.0 + bound(full, EXACT, 0.0125),
-                 energy_rise=bound(full, 0.032, 0.130))
-    assert o.max_cfl > 3.9  # measured 4.088 (from a_0 = 0: 2.918; start-configuration divergence 3.197)
-    assert 0.88 <= cell_ratio(o) <= 1.0  # measured 0.990 (2 s; from a_0 = 0 0.985); FLIP/PIC 0.915 (2 s)
-    # the walls act: measured 567 (2 s; 604 with PSPG's viscous part, negligible for water here, built;
-    # from a_0 = 0 553); FLIP/PIC 1332 (2 s), 1618 (4 s)
-    assert o.wall_stops >= 540
+    # measured 1.791, 1.0, 0.0304, both versions (before the crowding tolerance 2.509, 1.0, 0.0306: a run-up jet
+    # at 2.5 times free fall; from a_0 = 0: 1.791, 1.0, 0.0290, the whole flow a half step late; start-configuration
+    # divergence 1.962, 1.0, 0.128; FLIP/PIC 2.713, 1.01225, 0.0845)
+    assert_sound(o, 800, speed_ratio=1.80, energy_max=1.0 + EXACT, energy_rise=0.032)
+    assert o.max_cfl > 2.8  # measured 2.918 (before the crowding tolerance 4.088; start-configuration divergence 3.197)
+    # measured 0.975 (2 s), 1.02 (4 s) (before the crowding tolerance 0.990 (2 s); from a_0 = 0 0.985); FLIP/PIC
+    # 0.915 (2 s)
+    assert 0.88 <= cell_ratio(o) <= 1.03
+    # the walls act: measured 455 (2 s), 498 (4 s) (before the crowding tolerance 567, 674; 604 with PSPG's viscous
+    # part, negligible for water here, built; from a_0 = 0 553); FLIP/PIC 1332 (2 s), 1618 (4 s)
+    assert o.wall_stops >= 430
 
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
@@ -90,9 +91,10 @@ def test_at_twenty_times_the_seeds_step_the_eruption_is_diagnosed(full):
     25 %); the energy check stops it, finite, with its mass."""
     o = measured("dt-20x", full)
     assert o.run.status == "stopped" and o.run.cause.startswith("energy growth")
-    # measured: 31 steps, 0.62 s, a rise of 13 % (start-configuration divergence: 40 steps, 0.8 s, a particle
-    # at 9.49 m/s; FLIP/PIC two-sided: 29 steps, 0.58 s; affine-FLIP two-sided: 34 steps, 0.68 s)
-    assert o.run.steps == 31 and o.run.time == pytest.approx(0.62)
+    # measured: 32 steps, 0.64 s, a rise of 16 % (before the crowding tolerance 31 steps, 0.62 s, 14 %;
+    # start-configuration divergence: 40 steps, 0.8 s, a particle at 9.49 m/s; FLIP/PIC two-sided: 29 steps, 0.58 s;
+    # affine-FLIP two-sided: 34 steps, 0.68 s)
+    assert o.run.steps == 32 and o.run.time == pytest.approx(0.64)
     assert (o.finite, o.particles, abs(o.mass_error) <= 1e-14) == (True, 800, True)
 
 
@@ -101,14 +103,16 @@ def test_dam_break_of_water(full):
     """mu = 1e-3 Pa s at the seed's step: the fastest particle is the
     run-up jet at the right wall (t = 0.28 s), 2.1 times free fall from the column's top."""
     o = measured("water", full)
-    # measured 2.022, 1.0082, 0.0085 at 0.6 s and 2.02, 1.008, 0.009 at 2 s (from a_0 = 0: 2.025 and 2.085,
+    # measured 2.018, 1.0076, 0.0084 at 0.6 s and 2 s (before the crowding tolerance 2.022, 1.0082, 0.0085 and
+    # 2.02, 1.008, 0.009; from a_0 = 0: 2.025 and 2.085,
     # 1.0083, 0.0086; start-configuration divergence 2.109, 1.0153, 0.0159; FLIP/PIC 1.782, 1.0, 6.3e-5): the
     # affine-FLIP transfer's energy rises by 0.8 % of the start at the wall impact, where FLIP/PIC's only fell
     assert_sound(o, 800, speed_ratio=bound(full, 2.04, 2.10), energy_max=1.0 + bound(full, 0.009, 0.009),
                  energy_rise=bound(full, 0.0095, 0.0095))
     # measured 1.225 (0.6 s), 1.17 (2 s) (from a_0 = 0: 1.215, 1.18); FLIP/PIC 1.16 (0.6 s), 1.10 (2 s)
     assert 1.09 <= cell_ratio(o) <= 1.25
-    assert o.wall_stops <= bound(full, 60, 185)  # measured 50 (0.6 s), 71 (2 s) (from a_0 = 0: 52, 175); FLIP/PIC 0
+    # measured 61 (0.6 s), 193 (2 s) (before the crowding tolerance 50, 81; from a_0 = 0: 52, 175); FLIP/PIC 0
+    assert o.wall_stops <= bound(full, 70, 210)
 
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
@@ -128,12 +132,13 @@ def test_dam_break_onto_an_obstacle(full):
     """scenes/obstacle.toml: the surge hits a block, splashes over it in a thin sheet and
     isolated particles; none enters the block (that would stop the run), none is lost."""
     o = measured("obstacle", full)
-    # measured 2.923, 1.0001, 0.0011: a wave landing on the thin layer that flows back along the floor
-    # squeezes out a jet at 6.95 m/s (from a_0 = 0: 2.427, 1.00009, 0.0014; start-configuration divergence
+    # measured 2.899, 1.0, 0.0013 (before the crowding tolerance 2.923, 1.0001, 0.0011): a wave landing on the thin layer that flows back along the floor
+    # squeezes out a jet at 6.89 m/s (from a_0 = 0: 2.427, 1.00009, 0.0014; start-configuration divergence
     # 2.405, 1.00048, 0.0037; FLIP/PIC 1.562)
     assert_sound(o, 800, speed_ratio=2.93, energy_max=1.0 + bound(full, 6e-4, 6e-4),
                  energy_rise=bound(full, 0.004, 0.004))
-    # measured 1.225 (0.6 s), 1.145 (2 s) (from a_0 = 0: 1.235); FLIP/PIC 1.06 (0.6 s), 1.125 (2 s)
+    # measured 1.235 (0.6 s), 1.145 (2 s) (before the crowding tolerance 1.225, 1.185; from a_0 = 0: 1.235); FLIP/PIC
+    # 1.06 (0.6 s), 1.125 (2 s)
     assert 1.05 <= cell_ratio(o) <= 1.24
     assert not o.solver.grid.blocked[o.solver.particles.cell].any()
 
@@ -178,18 +183,18 @@ def test_a_sparse_cloud_falls_freely_and_lands(full):
     -53 kPa) that throws one out; at dt 9e-4 s and 1.1e-3 s a particle leaves at 2.5-3.6 m/s
     (the energy check stops the second)."""
     o = measured("sparse-cloud", full)
-    # measured 1.031, 1.0, 0.0107 (from a_0 = 0: 1.030, 1.0, 0.0237; start-configuration divergence 1.046,
+    # measured 1.031, 1.0, 0.0078 (before the crowding tolerance 0.0107; from a_0 = 0: 1.030, 1.0, 0.0237; start-configuration divergence 1.046,
     # 1.0, 0.0094; FLIP/PIC 0.865, 1.0, 0.0025 (0.6 s), 0.004 (2 s)); the full version was not rerun with the
     # end-of-step forms
     assert_sound(o, len(hc.SPARSE), speed_ratio=1.05, energy_max=1.0 + EXACT,
                  energy_rise=bound(full, 0.012, 0.025))
     # measured 0.00036 (from a_0 = 0: 0.00457, the half step's lag)
     assert free_fall_error(o, hc.SPARSE[:, 1].min()) <= 0.0005
-    # m, 1.5 h; measured 0.0217 (0.6 s; affine 0.0171); FLIP/PIC 0.0165 (0.6 s), 0.0154 (2 s)
+    # m, 1.5 h; measured 0.0187 (0.6 s; before the crowding tolerance 0.0217; affine 0.0171); FLIP/PIC 0.0165 (0.6 s), 0.0154 (2 s)
     assert o.surface_height <= 0.0220
-    # m; 0.0157 at 0.6 s (before 0.0155, FLIP/PIC 0.0165)
+    # m; 0.0167 at 0.6 s (before the crowding tolerance 0.0157, FLIP/PIC 0.0165)
     assert o.history["centroid"][-1, 1] <= bound(full, 0.0170, 2 * hc.h)
-    # measured 0.0754 at 0.6 s (from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
+    # measured 0.0682 at 0.6 s (before the crowding tolerance 0.0754; from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.077, 0.1)
 
 
@@ -201,10 +206,10 @@ def test_water_driven_into_a_corner(full):
     not an oscillation: the run goes on), jets along both walls and falls back into the
     corner. The energy only falls."""
     o = measured("corner", full)
-    # 20 x 20 particles; measured 1.902, 1.0, 0.00231 (affine 1.903, 1.0, 0.0021; FLIP/PIC 1.869, 1.0, 0)
+    # 20 x 20 particles; measured 1.880, 1.0, 0.00114 (before the crowding tolerance 1.902, 1.0, 0.00231; affine 1.903, 1.0, 0.0021; FLIP/PIC 1.869, 1.0, 0)
     assert_sound(o, 400, speed_ratio=1.91, energy_max=1.0 + bound(full, EXACT, 1e-4),
                  energy_rise=bound(full, 0.0024, 0.0022))
-    # measured 1.536 (0.5 s; from a_0 = 0 1.491; start-configuration divergence 1.455); FLIP/PIC 1.273 (0.5 s),
+    # measured 1.536 (0.5 s; 1.018 at 3 s; from a_0 = 0 1.491; start-configuration divergence 1.455); FLIP/PIC 1.273 (0.5 s),
     # 0.99 (3 s)
     assert 0.98 <= cell_ratio(o) <= 1.55
     # the centroid's distance from the corner along gravity: 2/3 of the depth sqrt(A) of the
@@ -228,16 +233,17 @@ def test_a_long_run_settles_with_its_volume(full):
         # measured 2.509, 1.0, 0.0306 (from a_0 = 0: 1.791, 1.0, 0.0290; start-configuration divergence 1.962,
         # 1.0, 0.128; FLIP/PIC 2.713)
         assert_sound(o, 800, speed_ratio=2.52, energy_max=1.0 + EXACT, energy_rise=0.032)
-    # the layer: 68.3 mm after 5 s, still sloshing (67.4 mm without PSPG's viscous part; from a_0 = 0 72.1 mm;
+    # the layer: 63.9 mm after 5 s, still sloshing (68.3 mm before the crowding tolerance, 67.4 mm without PSPG's
+    # viscous part; from a_0 = 0 72.1 mm;
     # start-configuration divergence 67.7 mm, FLIP/PIC 68.6 mm; a sloshing surface's snapshot moves with
-    # round-off, hence 3 % in CI); after 40 s it still sloshes (fastest particle 0.27-0.33 m/s) and the snapshot
-    # read 73.9, 74.5 and 76.8 mm on codes whose layers agree (from a_0 = 0 77.7 mm; FLIP/PIC 77.6;
-    # SETTLED_DEPTH = 73 mm)
-    assert o.surface_height == pytest.approx(bound(full, 0.0683, 0.0739), rel=bound(full, 0.03, 0.05))
-    if full:  # the layer's mean depth over the last 5 s, twice its centroid's height: 77.05 mm (76.92 with
-        # PSPG's viscous part), std 1.1 mm over those seconds
+    # round-off, hence 3 % in CI); after 40 s it still sloshes (fastest particle 0.13-0.33 m/s) and the snapshot
+    # read 73.9, 74.5, 76.8 and 68.8 mm (the crowding tolerance) on codes whose layers' mean depths agree within
+    # 1 % (from a_0 = 0 77.7 mm; FLIP/PIC 77.6): the full version holds it within 7 % of SETTLED_DEPTH = 73 mm
+    assert o.surface_height == pytest.approx(bound(full, 0.0639, SETTLED_DEPTH), rel=bound(full, 0.03, 0.07))
+    if full:  # the layer's mean depth over the last 5 s, twice its centroid's height: 76.4 mm, std 1.0 mm over
+        # those seconds (before the crowding tolerance 77.05; 76.92 with PSPG's viscous part)
         t, centroid = o.history["t"], np.asarray(o.history["centroid"])
-        assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0770, rel=0.01)
+        assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0764, rel=0.01)
     # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.264 at 5 s
     # (from a_0 = 0 0.277; start-configuration divergence 0.280)
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.29, 1.4 * SETTLED_DEPTH / hc.H)
