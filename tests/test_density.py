@@ -58,5 +58,5 @@ def test_a_free_surface_keeps_its_volume_with_the_surface_aware_correction(case,
 
 @pytest.mark.full
 def test_the_crowding_only_correction_swells_a_sloshing_surface_and_none_shrinks_it():
-    assert _change("slosh", 5.0)["change"] > 0.02  # measured +2.73 % in 5 s
+    assert _change("slosh", 5.0)["change"] > 0.015  # measured +1.97 % in 5 s (+2.60 % before the crowding tolerance)
     assert _change("slosh", 5.0, alpha=0.0)["change"] < -0.01  # measured -1.74 %
