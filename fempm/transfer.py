@@ -142,6 +142,19 @@ def flip(velocity: np.ndarray, change: np.ndarray, new: np.ndarray, pic_blend: f
     return (1 - pic_blend) * (velocity + change) + pic_blend * new
 
 
+_flip = numba.njit(cache=True)(flip)  # the same formula on numbers, for the kernels
+
+
+@numba.njit(cache=True)
+def _flip_state(at, dv, da, v, a, velocity, acceleration, share):
+    """:func:`flip` of the particles' two-component ``velocity`` and ``acceleration`` in place, the
+    changes and new values read from ``at`` ``(n, bs)`` at the components from ``dv``, ``da``, ``v``, ``a``."""
+    for p in range(at.shape[0]):
+        for c in range(2):
+            velocity[p, c] = _flip(velocity[p, c], at[p, dv + c], at[p, v + c], share)
+            acceleration[p, c] = _flip(acceleration[p, c], at[p, da + c], at[p, a + c], share)
+
+
 def _jets(gf: GridFunction, particles, order: int) -> np.ndarray:
     phi, lfun = gf.space.tabulate_particles(particles, order, exact=False)
     out = np.empty((len(particles), len(jet_indices(order)), gf.space.bs))
@@ -316,13 +329,21 @@ def affine_grid_to_particles(gf: GridFunction, particles, kind: str = "apic", je
 def _inverse_moments(D: np.ndarray, h: float) -> np.ndarray:
     """``D^-1`` of symmetric 2 x 2 moments; a vanishing moment (a particle on a clamped wall or a
     Q1 node, where B vanishes too) is floored at ``1e-14 h^2``, its part of ``C`` then zero."""
-    floor = 1e-14 * h * h
-    a, b, d = np.maximum(D[:, 0, 0], floor), D[:, 0, 1], np.maximum(D[:, 1, 1], floor)
-    det = a * d - b * b
     inverse = np.empty_like(D)
-    inverse[:, 0, 0], inverse[:, 1, 1] = d / det, a / det
-    inverse[:, 0, 1] = inverse[:, 1, 0] = -b / det
+    _invert_moments(D, 1e-14 * h * h, inverse)
     return inverse
+
+
+@numba.njit(cache=True)
+def _invert_moments(D, floor, inverse):
+    """:func:`_inverse_moments` particle by particle (``max`` keeps a NaN, as ``np.maximum``)."""
+    for p in range(D.shape[0]):
+        a, b, d = D[p, 0, 0], D[p, 0, 1], D[p, 1, 1]
+        a = floor if a < floor else a
+        d = floor if d < floor else d
+        det = a * d - b * b
+        inverse[p, 0, 0], inverse[p, 1, 1] = d / det, a / det
+        inverse[p, 0, 1] = inverse[p, 1, 0] = -b / det
 
 
 def angular_momentum(space: Space, particles, gradients: np.ndarray | None = None, centre=(0.0, 0.0)) -> float:
@@ -396,10 +417,8 @@ def update_state(g2p: GridFunction, jets: np.ndarray, particles, kind: str, shar
     as the velocity, so that the next step starts from one transferred pair.
     """
     space = g2p.space
-    at = {name: jets[:, 0, space.field_slice(name)] for name in ("dv", "da", "v", "a")}
-    particles["velocity"][:] = flip(particles["velocity"], at["dv"], at["v"], share)
-    particles["acceleration"][:] = flip(particles["acceleration"], at["da"], at["a"], share)
+    _flip_state(jets[:, 0], *(space.field_offset(name) for name in ("dv", "da", "v", "a")), particles["velocity"],
+                particles["acceleration"], float(share))
     if kind != "flip":
-        v_and_a = np.r_[space.field_slice("v"), space.field_slice("a")]
-        _, affine = affine_grid_to_particles(g2p, particles, affine_rule(kind), jets, v_and_a)
+        _, affine = affine_grid_to_particles(g2p, particles, affine_rule(kind), jets, space.components("v", "a"))
         particles[AFFINE_FIELDS[0]][:], particles[AFFINE_FIELDS[1]][:] = affine[:, :2], affine[:, 2:]

@@ -86,6 +86,10 @@ class Walls:
         functions = space.numbering.local_functions[self.normal // space.bs]
         self._contact_ids = functions * space.bs + self.normal % space.bs
         self._gravity = max(float(np.linalg.norm(physics.gravity)), 1.0)
+        grid, margin = space.grid, 1e-9 * space.grid.h  # where keep_inside stops particles
+        impermeable = {side: kind in ("slip", "no-slip") for side, kind in self.conditions.items()}
+        self._inside = (np.where([impermeable["left"], impermeable["bottom"]], grid.lower + margin, -np.inf),
+                        np.where([impermeable["right"], impermeable["top"]], grid.upper - margin, np.inf))
 
     def _contact_of(self, owned: np.ndarray):
         """The normal dofs of slip and no-slip sides at rest (positions among the owned dofs), the
@@ -262,10 +266,9 @@ class Walls:
         if self.physics.recycle:
             width = grid.upper[0] - grid.lower[0]
             x[:, 0] = grid.lower[0] + np.mod(x[:, 0] - grid.lower[0], width)
-        margin = 1e-9 * grid.h
-        impermeable = {side: kind in ("slip", "no-slip") for side, kind in self.conditions.items()}
-        low = np.where([impermeable["left"], impermeable["bottom"]], grid.lower + margin, -np.inf)
-        high = np.where([impermeable["right"], impermeable["top"]], grid.upper - margin, np.inf)
+        low, high = self._inside
+        if len(x) and np.all(x.min(axis=0) >= low) and np.all(x.max(axis=0) <= high):
+            return x  # (a NaN fails the comparisons and takes the search below)
         outside = np.any((x < low) | (x > high), axis=1)
         if np.any(outside):
             self.stops += int(outside.sum())
