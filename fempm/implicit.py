@@ -15,6 +15,7 @@ dofs, Newton), :class:`~fempm.region.MatrixRegion` (the Jacobian's rows),
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from mpi4py import MPI
 
@@ -31,6 +32,25 @@ from fempm.stepper import StepControl, Stepper
 from fempm.system import GridSystem, StepForms
 
 __all__ = ["ImplicitSolver"]
+
+
+@numba.njit(cache=True)
+def _grid_state(p2g, m, mv, ma, count, rho, reference, min_support, min_pressure, min_count, velocity,
+                acceleration, keep, pressure):
+    """:meth:`ImplicitSolver.project`'s grid fields from the P2G sums ``p2g`` (columns ``m``, ``mv``,
+    ``ma``, ``count``) and the smoothed density ``rho``, function by function: ``v = (m v) / m`` and
+    ``a = (m a) / m`` where the material's fraction ``rho / reference`` reaches ``min_support`` (else
+    0); for the owned functions (the rows of ``keep``) every dof kept there, the pressure only where
+    the fraction reaches ``min_pressure`` and ``min_count`` particles or more share the support."""
+    for f in range(p2g.shape[0]):
+        mass, fraction = p2g[f, m], rho[f] / reference
+        moving = mass > 0 and fraction >= min_support
+        for c in range(2):
+            velocity[f, c] = p2g[f, mv + c] / mass if moving else 0.0
+            acceleration[f, c] = p2g[f, ma + c] / mass if moving else 0.0
+        if f < keep.shape[0]:
+            keep[f, :] = fraction >= min_support
+            keep[f, pressure] &= fraction >= min_pressure and p2g[f, count] >= min_count
 
 
 class ImplicitSolver(Stepper):
@@ -138,21 +158,15 @@ class ImplicitSolver(Stepper):
         self.region.follow(self.particles)
         p, s, c = self.particles, self.system, self.controls
         p2g = transfer.project_state(p, self.scheme.transfer, self._p2g)
-        m = p2g.field("m")
         rho = s.fields["smoothed_density"].values
-        rho[:] = transfer.smoothed_density(m, self._integrals[:, None])
-        fraction = rho / self._reference_density
+        rho[:] = transfer.smoothed_density(p2g.field("m"), self._integrals[:, None])
         if s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
-            s.fields["density_error"].values[:, 0] = self._density_error(fraction[:, 0])
-        moving = (m > 0) & (fraction >= c.min_support_fraction)
-        safe = np.where(moving, m, 1.0)
-        s.fields["grid_velocity"].values[:] = np.where(moving, p2g.field("mv") / safe, 0.0)
-        s.fields["grid_acceleration"].values[:] = np.where(moving, p2g.field("ma") / safe, 0.0)
-        owned = s.scalar_space.numbering.num_owned
-        fraction = fraction[:owned, 0]
-        keep = np.repeat(fraction >= c.min_support_fraction, s.space.bs).reshape(-1, s.space.bs)
-        enough = p2g.field("count")[:owned, 0] >= -(-self.basis.functions_per_cell // 3)
-        keep[:, s.space.field_slice("p")] &= ((fraction >= c.min_pressure_support) & enough)[:, None]
+            s.fields["density_error"].values[:, 0] = self._density_error(rho[:, 0] / self._reference_density)
+        keep = np.empty((s.scalar_space.numbering.num_owned, s.space.bs), dtype=np.bool_)
+        _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
+                    self._reference_density, c.min_support_fraction, c.min_pressure_support,
+                    -(-self.basis.functions_per_cell // 3), s.fields["grid_velocity"].values,
+                    s.fields["grid_acceleration"].values, keep, s.space.field_offset("p"))
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs
         s.impose_walls()
         return s.free.select(keep.ravel())

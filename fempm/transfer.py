@@ -398,13 +398,31 @@ def project_state(particles, kind: str, out: GridFunction) -> GridFunction:
     """P2G of mass, momentum, mass-weighted acceleration and particle counts into ``out``
     (fields ``m``, ``mv``, ``ma``, ``count``): ``(m v)_i = sum_p m_p N_i(x_p) (v_p + C_p (x_i - x_p))``,
     ``C_p`` the particle's affine part (none for ``flip``), likewise the acceleration."""
-    mass = particles["mass"][:, None]
-    values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
     if kind == "flip":
+        mass = particles["mass"][:, None]
+        values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
         return particles_to_grid(out.space, particles, values, counts=True, out=out)
-    gradients = mass[:, :, None] * np.concatenate(
-        [np.zeros((len(particles), 1, 2)), particles[AFFINE_FIELDS[0]], particles[AFFINE_FIELDS[1]]], axis=1)
+    values, gradients = _weighted_state(particles["mass"], particles["velocity"], particles["acceleration"],
+                                        particles[AFFINE_FIELDS[0]], particles[AFFINE_FIELDS[1]])
     return affine_particles_to_grid(out.space, particles, values, gradients, counts=True, out=out)
+
+
+@numba.njit(cache=True)
+def _weighted_state(mass, velocity, acceleration, affine_velocity, affine_acceleration):
+    """The values ``[m, m v, m a]`` ``(n, 5)`` and affine parts ``[0, m C_v, m C_a]`` ``(n, 5, 2)`` that
+    :func:`project_state` spreads."""
+    n = mass.shape[0]
+    values, gradients = np.empty((n, 5)), np.zeros((n, 5, 2))
+    for p in range(n):
+        m = mass[p]
+        values[p, 0] = m
+        for c in range(2):
+            values[p, 1 + c] = m * velocity[p, c]
+            values[p, 3 + c] = m * acceleration[p, c]
+            for d in range(2):
+                gradients[p, 1 + c, d] = m * affine_velocity[p, c, d]
+                gradients[p, 3 + c, d] = m * affine_acceleration[p, c, d]
+    return values, gradients
 
 
 def update_state(g2p: GridFunction, jets: np.ndarray, particles, kind: str, share: float):
