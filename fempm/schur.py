@@ -260,6 +260,8 @@ class FreeBlocks:
             (n1, n1), (self._schur_pointer, self._schur_cols, self._schur_values), comm=PETSc.COMM_SELF)
         isets = self.nest.getNestISs()[0]
         self.index_sets = [(names[0], isets[0]), (names[1], isets[1])]
+        # a right-hand side and a solution in the rows of nest, kept with the pattern
+        self.vectors = tuple(PETSc.Vec().createSeq(len(self.order), comm=PETSc.COMM_SELF) for _ in range(2))
 
     def covers(self, free: np.ndarray) -> bool:
         """Whether every one of the ``free`` dofs is in the pattern."""
@@ -292,9 +294,10 @@ class FreeBlocks:
         _schur_values(self._schur_pointer, self._schur_cols, *self._block_arrays(1, 1), *self._block_arrays(1, 0),
                       *self._block_arrays(0, 1), self._blocks[0, 0][3][self._diagonal], self._schur_values)
 
-    def restrict(self, vector: np.ndarray) -> np.ndarray:
-        """A vector by global dof in the rows of ``nest``, zero on the dofs not free."""
-        return np.where(self._free, vector[self.order], 0.0)
+    def restrict(self, vector: np.ndarray, out: np.ndarray):
+        """A vector by global dof into ``out`` in the rows of ``nest``, zero on the dofs not free."""
+        np.take(vector, self.order, out=out)
+        out[~self._free] = 0.0
 
     def extend(self, solution: np.ndarray, out: np.ndarray):
         """The free rows of a solution in the rows of ``nest`` into ``out``, by global dof."""
@@ -306,3 +309,5 @@ class FreeBlocks:
                 m.destroy()
         self.nest.destroy()
         self.schur.destroy()
+        for vector in self.vectors:
+            vector.destroy()
