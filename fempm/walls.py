@@ -29,6 +29,7 @@ no sign to separate by, and every wall dof stays held (two-sided). Moving walls 
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from fempm.options import Physics
@@ -267,13 +268,21 @@ class Walls:
             width = grid.upper[0] - grid.lower[0]
             x[:, 0] = grid.lower[0] + np.mod(x[:, 0] - grid.lower[0], width)
         low, high = self._inside
-        if len(x) and np.all(x.min(axis=0) >= low) and np.all(x.max(axis=0) <= high):
-            return x  # (a NaN fails the comparisons and takes the search below)
-        outside = np.any((x < low) | (x > high), axis=1)
-        if np.any(outside):
-            self.stops += int(outside.sum())
+        stopped = _count_outside(x, low, high)
+        if stopped:
+            self.stops += stopped
             x = np.clip(x, low, high)
         return x
+
+
+@numba.njit(cache=True)
+def _count_outside(x, low, high):
+    """The points ``x`` ``(n, 2)`` below ``low`` or above ``high`` in a coordinate (NaN is neither)."""
+    count = 0
+    for p in range(x.shape[0]):
+        if x[p, 0] < low[0] or x[p, 0] > high[0] or x[p, 1] < low[1] or x[p, 1] > high[1]:
+            count += 1
+    return count
 
 
 class FreeDofs:
