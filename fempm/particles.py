@@ -330,9 +330,9 @@ class Particles:
 
     def _take(self, index: np.ndarray):
         for name in self.fields:
-            self.fields[name] = self.fields[name][index]
+            self.fields[name] = _rows(self.fields[name], index)
         self.cell = self.cell[index]
-        self.xi = self.xi[index]
+        self.xi = _rows(self.xi, index)
 
     # -- validation, location, migration --------------------------------------------
     def check(self):
@@ -373,6 +373,11 @@ class Particles:
         order = np.argsort(self.cell * (int(self.id.max(initial=-1)) + 1) + self.id, kind="stable")
         self._take(order)
         self.cache.clear()
+
+
+def _rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """``a[index]``; by ``np.take`` for arrays of more than one axis, where indexing takes a slower path."""
+    return a[index] if a.ndim == 1 else np.take(a, index, axis=0)
 
 
 def exchange(fields: dict[str, np.ndarray], destination: np.ndarray, comm) -> dict[str, np.ndarray]:
