@@ -53,6 +53,21 @@ def _grid_state(p2g, m, mv, ma, count, rho, reference, min_support, min_pressure
             keep[f, pressure] &= fraction >= min_pressure and p2g[f, count] >= min_count
 
 
+@numba.njit(cache=True)
+def _g2p_fields(U, u, p, v_n, a_n, v_new, a_new, out, du, dv, da, v, a, pressure):
+    """:meth:`ImplicitSolver.update`'s grid fields into ``out`` (at the components from ``du``, ``dv``,
+    ``da``, ``v``, ``a``, ``pressure``): the solved ``du`` and ``p`` (of ``U``, from ``u`` and ``p``), the
+    changes ``v_{n+1} - v_n`` and ``a_{n+1} - a_n``, and the new values."""
+    for f in range(out.shape[0]):
+        for c in range(2):
+            out[f, du + c] = U[f, u + c]
+            out[f, dv + c] = v_new[f, c] - v_n[f, c]
+            out[f, da + c] = a_new[f, c] - a_n[f, c]
+            out[f, v + c] = v_new[f, c]
+            out[f, a + c] = a_new[f, c]
+        out[f, pressure] = U[f, p]
+
+
 class ImplicitSolver(Stepper):
     """Advances particles of an incompressible viscous fluid by the implicit MPM.
 
@@ -181,10 +196,9 @@ class ImplicitSolver(Stepper):
         """
         p, s, g = self.particles, self.system, self._g2p
         v_new, a_new = s.end_state()
-        g.field("du")[:] = s.U.field("u")
-        g.field("dv")[:] = v_new - s.fields["grid_velocity"].values
-        g.field("da")[:] = a_new - s.fields["grid_acceleration"].values
-        g.field("v")[:], g.field("a")[:], g.field("p")[:] = v_new, a_new, s.U.field("p")
+        _g2p_fields(s.U.values, s.space.field_offset("u"), s.space.field_offset("p"), s.fields["grid_velocity"].values,
+                    s.fields["grid_acceleration"].values, v_new, a_new, g.values,
+                    *(g.space.field_offset(name) for name in ("du", "dv", "da", "v", "a", "p")))
         jets = transfer.grid_jets_to_particles(g, p, order=1)
         sc = self.scheme
         transfer.update_state(g, jets, p, sc.transfer, transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt))
