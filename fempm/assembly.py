@@ -32,6 +32,7 @@ __all__ = [
     "assemble_vector_lumped",
     "jets_at_particles",
     "pack_jets",
+    "side_by_side",
 ]
 
 
@@ -356,6 +357,25 @@ def pack_jets(phi, lfun, values, index, out):
                 for l in range(nl):
                     s += phi[p, a, l] * local[c, l]
                 out[p, index[c, a]] = s
+
+
+def side_by_side(arrays) -> np.ndarray:
+    """``np.concatenate(arrays, axis=1)`` of 2-D float arrays with the same rows, contiguous (numpy copies
+    narrow columns element by element)."""
+    arrays = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in arrays)
+    out = np.empty((arrays[0].shape[0], sum(a.shape[1] for a in arrays)))
+    _side_by_side(arrays, out)
+    return out
+
+
+@numba.njit(cache=True)
+def _side_by_side(arrays, out):
+    first = 0
+    for a in arrays:
+        for i in range(a.shape[0]):
+            for c in range(a.shape[1]):
+                out[i, first + c] = a[i, c]
+        first += a.shape[1]
 
 
 @numba.njit(cache=True)

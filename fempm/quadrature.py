@@ -384,14 +384,14 @@ class _Coefficients:
             else:  # a function that is zero (U at the start of a step between walls at rest): zero jets
                 out[:, offset: offset + size] = 0.0
         if columns:
-            assembly.pack_jets(phi, lfun, np.concatenate(columns, axis=1), np.concatenate(slots), out)
+            assembly.pack_jets(phi, lfun, assembly.side_by_side(columns), np.concatenate(slots), out)
         return out
 
     def nodal_slots(self):
         """For lumped integrals: the grid functions' coefficients side by side, and where
         their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
         columns = [self.grid_functions[name].values for kind, name, *_ in self._parts if kind != "particle"]
-        G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
+        G = assembly.side_by_side(columns) if columns else np.zeros((1, 1))
         return (G, *self._nodal_positions)
 
     def _positions(self):
