@@ -267,26 +267,34 @@ def affine_particles_to_grid(space: Space, particles, values, gradients, name: s
 
 
 @numba.njit(cache=True)
-def _apic_moments(phi0, lfun, nodes, x, grid_values, B, D):
-    """``B[p, c] = sum_l phi0[p, l] f[c] (x_f - x_p)`` and ``D[p] = sum_l phi0[p, l] (x_f - x_p)(x_f - x_p)^T``."""
-    nc = grid_values.shape[1]
-    for p in range(phi0.shape[0]):
-        for l in range(phi0.shape[1]):
+def _apic_moments(phi, lfun, nodes, x, grid_values, components, B, D):
+    """``B[p, c] = sum_l phi[p, 0, l] f[components[c]] (x_f - x_p)`` and
+    ``D[p] = sum_l phi[p, 0, l] (x_f - x_p)(x_f - x_p)^T``, each sum over ``l`` in order from 0."""
+    nc = components.shape[0]
+    b = np.empty((nc, 2))
+    for p in range(lfun.shape[0]):
+        d00 = d01 = d11 = 0.0
+        b[:] = 0.0
+        for l in range(lfun.shape[1]):
             f = lfun[p, l]
-            w = phi0[p, l]
+            w = phi[p, 0, l]
             rx, ry = nodes[f, 0] - x[p, 0], nodes[f, 1] - x[p, 1]
-            D[p, 0, 0] += w * rx * rx
-            D[p, 0, 1] += w * rx * ry
-            D[p, 1, 1] += w * ry * ry
+            d00 += w * rx * rx
+            d01 += w * rx * ry
+            d11 += w * ry * ry
             for c in range(nc):
-                B[p, c, 0] += w * grid_values[f, c] * rx
-                B[p, c, 1] += w * grid_values[f, c] * ry
-        D[p, 1, 0] = D[p, 0, 1]
+                wf = w * grid_values[f, components[c]]
+                b[c, 0] += wf * rx
+                b[c, 1] += wf * ry
+        D[p, 0, 0], D[p, 0, 1], D[p, 1, 0], D[p, 1, 1] = d00, d01, d01, d11
+        B[p] = b
 
 
-def affine_moments(space: Space, particles, grid_values: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """APIC's ``D_p = sum_i N_i(x_p) (x_i - x_p)(x_i - x_p)^T`` ``(n, 2, 2)`` and, for grid
-    values ``(num_local_functions, nc)``, ``B_p = sum_i f_i N_i(x_p) (x_i - x_p)^T`` ``(n, nc, 2)``.
+def affine_moments(space: Space, particles, grid_values: np.ndarray | None = None,
+                   components=slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    """APIC's ``D_p = sum_i N_i(x_p) (x_i - x_p)(x_i - x_p)^T`` ``(n, 2, 2)`` and, for the
+    ``components`` of grid values ``(num_local_functions, bs)`` (``nc`` of them),
+    ``B_p = sum_i f_i N_i(x_p) (x_i - x_p)^T`` ``(n, nc, 2)``.
 
     ``D_p`` is computed particle by particle, so that it is exact for the clamped wall
     B-splines and for Q1 (``h^2/4 I`` only for interior quadratic B-splines). It is
@@ -294,13 +302,12 @@ def affine_moments(space: Space, particles, grid_values: np.ndarray | None = Non
     single function is non-zero (a particle on a clamped wall, or on a Q1 node), where
     ``B_p`` vanishes alike.
     """
-    phi, lfun = space.tabulate_particles(particles, order=0)
-    grid_values = np.zeros((1, 0)) if grid_values is None else np.ascontiguousarray(grid_values)
-    nc = grid_values.shape[1]
-    B = np.zeros((len(particles), nc, 2))
-    D = np.zeros((len(particles), 2, 2))
-    _apic_moments(np.ascontiguousarray(phi[:, 0, :]), lfun, function_nodes(space), np.ascontiguousarray(particles.x),
-                  grid_values, B, D)
+    phi, lfun = space.tabulate_particles(particles, order=0, exact=False)
+    grid_values = np.zeros((1, 0)) if grid_values is None else np.asarray(grid_values, dtype=np.float64)
+    index = np.arange(grid_values.shape[1])[components]
+    B = np.empty((len(particles), len(index), 2))
+    D = np.empty((len(particles), 2, 2))
+    _apic_moments(phi, lfun, function_nodes(space), np.ascontiguousarray(particles.x), grid_values, index, B, D)
     return D, B
 
 
@@ -322,7 +329,7 @@ def affine_grid_to_particles(gf: GridFunction, particles, kind: str = "apic", je
     values = jets[:, 0, components]
     if kind == "tpic":
         return values, gradient(jets, gf.space.grid.h)[:, components]
-    D, B = affine_moments(gf.space, particles, np.ascontiguousarray(gf.values[:, components]))
+    D, B = affine_moments(gf.space, particles, gf.values, components)
     return values, B @ _inverse_moments(D, gf.space.grid.h)
 
 
