@@ -25,7 +25,6 @@ import numba
 import numpy as np
 from petsc4py import PETSc
 
-
 __all__ = ["PATTERN_MARGIN", "FreeBlocks"]
 
 #: Functions by which the blocks' pattern reaches beyond the free dofs' functions.
