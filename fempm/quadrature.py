@@ -469,7 +469,7 @@ class ParticleForm:
         # asked for but left out of the form (a term switched off) has no slot
         self._constant_names = [symbols.used_constants[c] for c in form.constants()]
         self._constant_values = None  # (array, slots): the kernel's constants, refilled at each assembly
-        self._columns_of = (None, None)  # (residual, columns): where this form's coefficients sit in its (_columns_in)
+        self._columns_of = (None, None)  # (residual, where this form's coefficients sit in its): _columns_in
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
