@@ -32,6 +32,7 @@ __all__ = [
     "assemble_vector_lumped",
     "jets_at_particles",
     "pack_jets",
+    "side_by_side",
 ]
 
 
@@ -344,18 +345,45 @@ def pack_jets(phi, lfun, values, index, out):
     reads them."""
     n, nq, nl = phi.shape
     bs = values.shape[1]
-    local = np.empty((bs, nl))
+    jets = np.empty((nq, bs))
     for p in range(n):
-        for l in range(nl):
-            f = lfun[p, l]
-            for c in range(bs):
-                local[c, l] = values[f, c]
+        _particle_jets(phi[p], lfun[p], values, jets)
         for a in range(nq):
             for c in range(bs):
-                s = 0.0
-                for l in range(nl):
-                    s += phi[p, a, l] * local[c, l]
-                out[p, index[c, a]] = s
+                out[p, index[c, a]] = jets[a, c]
+
+
+@numba.njit(cache=True)
+def _particle_jets(phi_p, lfun_p, values, jets):
+    """``jets[a, c] = sum_l phi_p[a, l] * values[lfun_p[l], c]`` for ``a < jets.shape[0]``, each sum
+    taken over ``l`` in order from 0.0 (the functions outermost: the components run contiguous)."""
+    nq, bs = jets.shape
+    jets[:] = 0.0
+    for l in range(lfun_p.shape[0]):
+        f = lfun_p[l]
+        for a in range(nq):
+            w = phi_p[a, l]
+            for c in range(bs):
+                jets[a, c] += w * values[f, c]
+
+
+def side_by_side(arrays) -> np.ndarray:
+    """``np.concatenate(arrays, axis=1)`` of 2-D float arrays with the same rows, contiguous (numpy copies
+    narrow columns element by element)."""
+    arrays = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in arrays)
+    out = np.empty((arrays[0].shape[0], sum(a.shape[1] for a in arrays)))
+    _side_by_side(arrays, out)
+    return out
+
+
+@numba.njit(cache=True)
+def _side_by_side(arrays, out):
+    first = 0
+    for a in arrays:
+        for i in range(a.shape[0]):
+            for c in range(a.shape[1]):
+                out[i, first + c] = a[i, c]
+        first += a.shape[1]
 
 
 @numba.njit(cache=True)
@@ -363,17 +391,5 @@ def jets_at_particles(phi, lfun, values, out):
     """``out[p, a, c] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: jets of a grid function, the
     first ``out.shape[1]`` of ``phi``'s (a tabulation of a higher order serves). A particle's
     coefficients are gathered once for all its jets."""
-    n, nl = lfun.shape
-    nq, bs = out.shape[1], values.shape[1]
-    local = np.empty((bs, nl))
-    for p in range(n):
-        for l in range(nl):
-            f = lfun[p, l]
-            for c in range(bs):
-                local[c, l] = values[f, c]
-        for a in range(nq):
-            for c in range(bs):
-                s = 0.0
-                for l in range(nl):
-                    s += phi[p, a, l] * local[c, l]
-                out[p, a, c] = s
+    for p in range(lfun.shape[0]):
+        _particle_jets(phi[p], lfun[p], values, out[p])

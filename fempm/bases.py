@@ -27,6 +27,7 @@ listed by :func:`jet_indices`.
 
 from __future__ import annotations
 
+import functools
 from functools import cached_property
 
 import numba
@@ -62,6 +63,24 @@ def _poly_derivatives(c, xi, order, powers, out):
                     f *= m - t
                 s += f * c[a, m] * powers[m - d]
             out[d, a] = s
+
+
+@functools.cache
+def _jet_array(order: int) -> np.ndarray:
+    """:func:`jet_indices` as an ``(n, 2)`` array (made once per order; read-only)."""
+    jets = np.array(jet_indices(order), dtype=np.int64)
+    jets.setflags(write=False)
+    return jets
+
+
+@numba.njit(cache=True)
+def _cell_functions(cells, nx, nfx, offsets, out):
+    """``out[p, l]``: the structured number of local function ``l`` of cell ``cells[p]`` (its first
+    function ``i + nfx j`` plus ``offsets[l]``)."""
+    for p in range(cells.shape[0]):
+        first = cells[p] % nx + nfx * (cells[p] // nx)
+        for l in range(offsets.shape[0]):
+            out[p, l] = first + offsets[l]
 
 
 @numba.njit(cache=True)
@@ -123,8 +142,10 @@ class Basis:
 
         Shape ``(n, (k+1)^2)``, local number ``a + (k+1) * b``.
         """
-        cells = np.asarray(cells, dtype=np.int64)
-        return (cells % self.grid.nx + self.nfx * (cells // self.grid.nx))[:, None] + self._cell_offsets
+        cells = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1)
+        out = np.empty((len(cells), self.functions_per_cell), dtype=np.int64)
+        _cell_functions(cells, self.grid.nx, self.nfx, self._cell_offsets, out)
+        return out
 
     @cached_property
     def _cell_offsets(self) -> np.ndarray:
@@ -142,7 +163,7 @@ class Basis:
         """
         cells = np.ascontiguousarray(cells, dtype=np.int64)
         xi = np.ascontiguousarray(xi, dtype=np.float64).reshape(-1, 2)
-        jets = np.array(jet_indices(order), dtype=np.int64)
+        jets = _jet_array(order)
         out = np.empty((cells.shape[0], len(jets), self.functions_per_cell))
         _tabulate(cells, xi, self.grid.nx, self.coef_x, self.coef_y, jets, out)
         return out

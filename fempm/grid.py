@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from mpi4py import MPI
 
@@ -274,7 +275,7 @@ class Grid:
                 the message names the first offending point and how many there are.
         """
         x = np.asarray(x, dtype=np.float64).reshape(-1, 2)
-        bad = self.outside(x)
+        cells, xi, bad = self._place(x)
         if np.any(bad):
             k = np.flatnonzero(bad)
             label = ids[k[0]] if ids is not None else k[0]
@@ -283,15 +284,43 @@ class Grid:
                 f"[{self.lower[0]:g}, {self.upper[0]:g}] x [{self.lower[1]:g}, {self.upper[1]:g}]"
                 + (f" ({len(k)} particles in all)" if len(k) > 1 else "")
             )
-        s = (x - self.lower) / self.h
-        n = np.array([self.nx, self.ny])
-        ij = np.clip(np.floor(s).astype(np.int64), 0, n - 1)
-        xi = np.clip(s - ij, 0.0, np.where(ij == n - 1, self.last, 1.0) if self.cut else 1.0)
-        return ij[:, 0] + self.nx * ij[:, 1], xi
+        return cells, xi
 
     def outside(self, x: np.ndarray) -> np.ndarray:
         """Boolean mask of the points outside the tank (or not finite)."""
-        s = (np.asarray(x, dtype=np.float64).reshape(-1, 2) - self.lower) / self.h
-        return ~np.all(np.isfinite(s), axis=1) | np.any(
-            (s < -_WALL_TOLERANCE) | (s > self._extent + _WALL_TOLERANCE), axis=1
-        )
+        return self._place(np.asarray(x, dtype=np.float64).reshape(-1, 2))[2]
+
+    def _place(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cells, reference coordinates and the outside mask of points ``x`` ``(n, 2)`` (:func:`_place`)."""
+        n = len(x)
+        cells, xi, outside = np.empty(n, dtype=np.int64), np.empty((n, 2)), np.empty(n, dtype=np.bool_)
+        _place(np.ascontiguousarray(x), self.lower, self.h, self.nx, self.ny, self._extent, self.last, self.cut,
+               _WALL_TOLERANCE, cells, xi, outside)
+        return cells, xi, outside
+
+
+@numba.njit(cache=True)
+def _place(x, lower, h, nx, ny, extent, last, cut, tolerance, cells, xi, outside):
+    """Per point: ``s = (x - lower) / h`` in cells; outside where ``s`` is not finite or beyond the
+    tank's ``extent`` by more than ``tolerance``; else the column and row ``floor(s)`` clipped to the
+    grid, the cell ``i + nx j``, and ``xi = s - (i, j)`` clipped to ``[0, 1]`` (``[0, last]`` in a
+    cut last column or row). Outside points get cell -1 and NaN coordinates."""
+    n = (nx, ny)
+    for p in range(x.shape[0]):
+        out = False
+        index = 0
+        for d in range(2):
+            s = (x[p, d] - lower[d]) / h
+            if not (s >= -tolerance and s <= extent[d] + tolerance):  # also NaN and infinities
+                out = True
+                break
+            k = min(max(int(np.floor(s)), 0), n[d] - 1)
+            upper = last[d] if cut and k == n[d] - 1 else 1.0
+            xi[p, d] = min(max(s - k, 0.0), upper)
+            index += k if d == 0 else nx * k
+        outside[p] = out
+        if out:
+            cells[p] = -1
+            xi[p, 0] = xi[p, 1] = np.nan
+        else:
+            cells[p] = index

@@ -15,6 +15,7 @@ dofs, Newton), :class:`~fempm.region.MatrixRegion` (the Jacobian's rows),
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from mpi4py import MPI
 
@@ -31,6 +32,40 @@ from fempm.stepper import StepControl, Stepper
 from fempm.system import GridSystem, StepForms
 
 __all__ = ["ImplicitSolver"]
+
+
+@numba.njit(cache=True)
+def _grid_state(p2g, m, mv, ma, count, rho, reference, min_support, min_pressure, min_count, velocity,
+                acceleration, keep, pressure):
+    """:meth:`ImplicitSolver.project`'s grid fields from the P2G sums ``p2g`` (columns ``m``, ``mv``,
+    ``ma``, ``count``) and the smoothed density ``rho``, function by function: ``v = (m v) / m`` and
+    ``a = (m a) / m`` where the material's fraction ``rho / reference`` reaches ``min_support`` (else
+    0); for the owned functions (the rows of ``keep``) every dof kept there, the pressure only where
+    the fraction reaches ``min_pressure`` and ``min_count`` particles or more share the support."""
+    for f in range(p2g.shape[0]):
+        mass, fraction = p2g[f, m], rho[f] / reference
+        moving = mass > 0 and fraction >= min_support
+        for c in range(2):
+            velocity[f, c] = p2g[f, mv + c] / mass if moving else 0.0
+            acceleration[f, c] = p2g[f, ma + c] / mass if moving else 0.0
+        if f < keep.shape[0]:
+            keep[f, :] = fraction >= min_support
+            keep[f, pressure] &= fraction >= min_pressure and p2g[f, count] >= min_count
+
+
+@numba.njit(cache=True)
+def _g2p_fields(U, u, p, v_n, a_n, v_new, a_new, out, du, dv, da, v, a, pressure):
+    """:meth:`ImplicitSolver.update`'s grid fields into ``out`` (at the components from ``du``, ``dv``,
+    ``da``, ``v``, ``a``, ``pressure``): the solved ``du`` and ``p`` (of ``U``, from ``u`` and ``p``), the
+    changes ``v_{n+1} - v_n`` and ``a_{n+1} - a_n``, and the new values."""
+    for f in range(out.shape[0]):
+        for c in range(2):
+            out[f, du + c] = U[f, u + c]
+            out[f, dv + c] = v_new[f, c] - v_n[f, c]
+            out[f, da + c] = a_new[f, c] - a_n[f, c]
+            out[f, v + c] = v_new[f, c]
+            out[f, a + c] = a_new[f, c]
+        out[f, pressure] = U[f, p]
 
 
 class ImplicitSolver(Stepper):
@@ -138,21 +173,15 @@ class ImplicitSolver(Stepper):
         self.region.follow(self.particles)
         p, s, c = self.particles, self.system, self.controls
         p2g = transfer.project_state(p, self.scheme.transfer, self._p2g)
-        m = p2g.field("m")
         rho = s.fields["smoothed_density"].values
-        rho[:] = transfer.smoothed_density(m, self._integrals[:, None])
-        fraction = rho / self._reference_density
+        rho[:] = transfer.smoothed_density(p2g.field("m"), self._integrals[:, None])
         if s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
-            s.fields["density_error"].values[:, 0] = self._density_error(fraction[:, 0])
-        moving = (m > 0) & (fraction >= c.min_support_fraction)
-        safe = np.where(moving, m, 1.0)
-        s.fields["grid_velocity"].values[:] = np.where(moving, p2g.field("mv") / safe, 0.0)
-        s.fields["grid_acceleration"].values[:] = np.where(moving, p2g.field("ma") / safe, 0.0)
-        owned = s.scalar_space.numbering.num_owned
-        fraction = fraction[:owned, 0]
-        keep = np.repeat(fraction >= c.min_support_fraction, s.space.bs).reshape(-1, s.space.bs)
-        enough = p2g.field("count")[:owned, 0] >= -(-self.basis.functions_per_cell // 3)
-        keep[:, s.space.field_slice("p")] &= ((fraction >= c.min_pressure_support) & enough)[:, None]
+            s.fields["density_error"].values[:, 0] = self._density_error(rho[:, 0] / self._reference_density)
+        keep = np.empty((s.scalar_space.numbering.num_owned, s.space.bs), dtype=np.bool_)
+        _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
+                    self._reference_density, c.min_support_fraction, c.min_pressure_support,
+                    -(-self.basis.functions_per_cell // 3), s.fields["grid_velocity"].values,
+                    s.fields["grid_acceleration"].values, keep, s.space.field_offset("p"))
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs
         s.impose_walls()
         return s.free.select(keep.ravel())
@@ -167,17 +196,16 @@ class ImplicitSolver(Stepper):
         """
         p, s, g = self.particles, self.system, self._g2p
         v_new, a_new = s.end_state()
-        g.field("du")[:] = s.U.field("u")
-        g.field("dv")[:] = v_new - s.fields["grid_velocity"].values
-        g.field("da")[:] = a_new - s.fields["grid_acceleration"].values
-        g.field("v")[:], g.field("a")[:], g.field("p")[:] = v_new, a_new, s.U.field("p")
+        _g2p_fields(s.U.values, s.space.field_offset("u"), s.space.field_offset("p"), s.fields["grid_velocity"].values,
+                    s.fields["grid_acceleration"].values, v_new, a_new, g.values,
+                    *(g.space.field_offset(name) for name in ("du", "dv", "da", "v", "a", "p")))
         jets = transfer.grid_jets_to_particles(g, p, order=1)
         sc = self.scheme
         transfer.update_state(g, jets, p, sc.transfer, transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt))
         p["pressure"][:] = jets[:, 0, g.space.field_slice("p")][:, 0]
         p.fields["x"] = s.walls.keep_inside(p.x + jets[:, 0, g.space.field_slice("du")])
-        grad_v = transfer.gradient(jets[:, :, g.space.field_slice("v")], self.grid.h)
-        divergence = np.abs(grad_v[:, 0, 0] + grad_v[:, 1, 1]).max(initial=0.0)
+        v, h = g.space.field_offset("v"), self.grid.h  # div v = (dv_x/dxi + dv_y/deta) / h, as transfer.gradient
+        divergence = np.abs(jets[:, 1, v] / h + jets[:, 2, v + 1] / h).max(initial=0.0)
         self.max_divergence = self.grid.comm.allreduce(float(divergence), op=MPI.MAX)
         self.check_pressure(p["pressure"], s.dt)
         if self.check_energy:

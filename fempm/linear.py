@@ -277,8 +277,9 @@ class LinearSolver:
             pc = self.ksp.getPC()
             pc.setFieldSplitIS(*blocks.index_sets)
             pc.setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, blocks.schur)
-        b_free = PETSc.Vec().createWithArray(blocks.restrict(b.getArray(readonly=True)), comm=PETSc.COMM_SELF)
-        x_free = b_free.duplicate()
+        b_free, x_free = blocks.vectors
+        blocks.restrict(b.getArray(readonly=True), b_free.getArray())
+        x_free.zeroEntries()  # as a new vector (a guess kept from the last solve would be another start)
         reason = self._ksp_solve(b_free, x_free, len(free))
         values = np.zeros(b.getLocalSize())
         if reason < 0 and self.exact_schur:  # LU of the free block in the grid's order, as without blocks

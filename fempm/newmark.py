@@ -10,7 +10,7 @@ The same functions serve the UFL forms (``forms/incompressible.py``) and the ste
 arrays, so the two can never disagree.
 """
 
-__all__ = ["acceleration", "velocity"]
+__all__ = ["acceleration", "end_velocity", "velocity"]
 
 
 def acceleration(du, v_n, a_n, dt, beta):
@@ -22,4 +22,9 @@ def velocity(du, v_n, a_n, dt, beta, gamma, a_new=None):
     """``v_{n+1} = v_n + dt ((1 - gamma) a_n + gamma a_{n+1})``; ``a_new`` if already computed."""
     if a_new is None:
         a_new = acceleration(du, v_n, a_n, dt, beta)
+    return end_velocity(v_n, a_n, a_new, dt, gamma)
+
+
+def end_velocity(v_n, a_n, a_new, dt, gamma):
+    """``v_{n+1} = v_n + dt ((1 - gamma) a_n + gamma a_{n+1})`` from both accelerations."""
     return v_n + dt * ((1 - gamma) * a_n + gamma * a_new)

@@ -384,14 +384,14 @@ class _Coefficients:
             else:  # a function that is zero (U at the start of a step between walls at rest): zero jets
                 out[:, offset: offset + size] = 0.0
         if columns:
-            assembly.pack_jets(phi, lfun, np.concatenate(columns, axis=1), np.concatenate(slots), out)
+            assembly.pack_jets(phi, lfun, assembly.side_by_side(columns), np.concatenate(slots), out)
         return out
 
     def nodal_slots(self):
         """For lumped integrals: the grid functions' coefficients side by side, and where
         their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
         columns = [self.grid_functions[name].values for kind, name, *_ in self._parts if kind != "particle"]
-        G = np.ascontiguousarray(np.concatenate(columns, axis=1)) if columns else np.zeros((1, 1))
+        G = assembly.side_by_side(columns) if columns else np.zeros((1, 1))
         return (G, *self._nodal_positions)
 
     def _positions(self):
@@ -468,6 +468,8 @@ class ParticleForm:
         # the kernel reads the constants the form holds, in the form's order: a constant
         # asked for but left out of the form (a term switched off) has no slot
         self._constant_names = [symbols.used_constants[c] for c in form.constants()]
+        self._constant_values = None  # (array, slots): the kernel's constants, refilled at each assembly
+        self._columns_of = (None, None)  # (residual, where this form's coefficients sit in its): _columns_in
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
@@ -512,7 +514,7 @@ class ParticleForm:
         phi = np.ascontiguousarray(phi)
         weight = particles["volume"] / self.space.grid.h**2
         coeffs = self._packing.pack(particles, phi, lfun)
-        consts = _constant_array(self.constants, self._constant_names)
+        consts = self._constants_now()
         return phi, lfun, weight, coeffs, consts
 
     # -- assembly --------------------------------------------------------------------
@@ -557,7 +559,7 @@ class ParticleForm:
             return self.assemble_matrix(particles, A), b
         target, b = self._zeroed_target(A), residual._zeroed_vector(b)
         phi, lfun, weight, coeffs, consts_r = residual._particle_data(particles)
-        consts = _constant_array(self.constants, self._constant_names)
+        consts = self._constants_now()
         vector = (residual._kernels[_REGULAR], b.array, consts_r, residual._perm)
         self._regular_matrix(target, particles, phi, lfun, weight, coeffs, columns, consts, vector)
         sums = residual._lumped_vector(b, particles, lfun, weight, coeffs, consts_r)
@@ -567,9 +569,32 @@ class ParticleForm:
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return target.finalize(), b
 
+    def _constants_now(self) -> np.ndarray:
+        """The constants' current values side by side in the kernel's order (:func:`_constant_array`),
+        written into the same array at every assembly (their sizes are the form's)."""
+        if self._constant_values is None:
+            values = _constant_array(self.constants, self._constant_names)
+            sizes = [np.size(self.constants[name]) for name in self._constant_names]
+            starts = np.cumsum([0, *sizes])
+            self._constant_values = values, [(name, slice(int(a), int(b)))
+                                             for name, a, b in zip(self._constant_names, starts[:-1], starts[1:])]
+            return values
+        values, slots = self._constant_values
+        for name, slot in slots:
+            values[slot] = self.constants[name]
+        return values
+
     def _columns_in(self, residual) -> np.ndarray | None:
         """Where this form's packed coefficients sit among ``residual``'s, if one pass can assemble
-        both (see :meth:`assemble_with`); else None."""
+        both (see :meth:`assemble_with`); else None. Fixed by the two forms: worked out once."""
+        if self._columns_of[0] is not residual:
+            columns = self._find_columns(residual)
+            if columns is not None:
+                columns.setflags(write=False)
+            self._columns_of = (residual, columns)
+        return self._columns_of[1]
+
+    def _find_columns(self, residual) -> np.ndarray | None:
         if (not isinstance(residual, ParticleForm) or residual.rank != 1 or residual.space is not self.space
                 or residual.order != self.order or _REGULAR not in self._kernels
                 or _REGULAR not in residual._kernels

@@ -36,8 +36,11 @@ class PressureCheck:
         self.tension_limit, self.compression_limit = tension_limit, compression_limit
 
     def __call__(self, pressure: np.ndarray, dt: float):
-        low = self.comm.allreduce(float(pressure.min(initial=0.0)), op=MPI.MIN)
-        high = self.comm.allreduce(float(pressure.max(initial=0.0)), op=MPI.MAX)
+        extremes = np.array([-pressure.min(initial=0.0), pressure.max(initial=0.0)])  # one reduction for both
+        if not np.isfinite(extremes.sum()):
+            extremes[:] = np.inf  # NaN on one rank: not finite on all
+        self.comm.Allreduce(MPI.IN_PLACE, extremes, op=MPI.MAX)
+        low, high = -float(extremes[0]), float(extremes[1])
         if not np.isfinite(low + high):
             raise SolveFailed("the pressure is not finite")
         if -low > self.tension_limit:

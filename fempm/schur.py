@@ -25,8 +25,6 @@ import numba
 import numpy as np
 from petsc4py import PETSc
 
-from fempm.region import dilate
-
 __all__ = ["PATTERN_MARGIN", "FreeBlocks"]
 
 #: Functions by which the blocks' pattern reaches beyond the free dofs' functions.
@@ -67,32 +65,33 @@ def _row_blocks(indptr, stencil, nfx, nfy, bs, rows, field, position):
     width = int(np.sqrt(stencil.shape[1]) + 0.5)
     k = (width - 1) // 2
     capacity = n * width * width * bs
-    pointer = np.zeros((2, n + 1), dtype=np.int32)
-    cols = np.empty((2, capacity), dtype=np.int32)
-    source = np.empty((2, capacity), dtype=np.int64)
-    count = np.zeros(2, dtype=np.int64)
+    pointer0, pointer1 = np.zeros(n + 1, dtype=np.int32), np.zeros(n + 1, dtype=np.int32)
+    cols0, cols1 = np.empty(capacity, dtype=np.int32), np.empty(capacity, dtype=np.int32)
+    source0, source1 = np.empty(capacity, dtype=np.int64), np.empty(capacity, dtype=np.int64)
+    count0 = count1 = 0
     for i in range(n):
         r = rows[i]
         f = r // bs
         fi, fj = f % nfx, f // nfx
         stored = indptr[r + 1] > indptr[r]
-        for dj in range(-k, k + 1):
-            for di in range(-k, k + 1):
-                gi, gj = fi + di, fj + dj
-                if gi < 0 or gi >= nfx or gj < 0 or gj >= nfy:
-                    continue
+        for gj in range(max(fj - k, 0), min(fj + k, nfy - 1) + 1):
+            for gi in range(max(fi - k, 0), min(fi + k, nfx - 1) + 1):
+                base = indptr[r] + bs * stencil[f, (gi - fi + k) + width * (gj - fj + k)] if stored else -1
                 for D in range(bs):
                     c = bs * (gi + nfx * gj) + D
                     b = field[c]
-                    if b < 0:
-                        continue
-                    cols[b, count[b]] = position[c]
-                    source[b, count[b]] = indptr[r] + bs * stencil[f, (di + k) + width * (dj + k)] + D if stored else -1
-                    count[b] += 1
-        pointer[0, i + 1] = count[0]
-        pointer[1, i + 1] = count[1]
-    return ((pointer[0].copy(), cols[0, : count[0]].copy(), source[0, : count[0]].copy()),
-            (pointer[1].copy(), cols[1, : count[1]].copy(), source[1, : count[1]].copy()))
+                    if b == 0:
+                        cols0[count0] = position[c]
+                        source0[count0] = base + D if stored else -1
+                        count0 += 1
+                    elif b == 1:
+                        cols1[count1] = position[c]
+                        source1[count1] = base + D if stored else -1
+                        count1 += 1
+        pointer0[i + 1] = count0
+        pointer1[i + 1] = count1
+    return ((pointer0, cols0[:count0].copy(), source0[:count0].copy()),
+            (pointer1, cols1[:count1].copy(), source1[:count1].copy()))
 
 
 @numba.njit(cache=True)
@@ -112,9 +111,10 @@ def _masked_values(pointer, cols, source, row_free, col_free, square, grid_value
     """A block's values: the grid matrix's where row and column are free; elsewhere the identity
     (``square``: a diagonal block) or zero."""
     for i in range(pointer.shape[0] - 1):
+        free = row_free[i]
         for k in range(pointer[i], pointer[i + 1]):
-            c = cols[k]
-            if row_free[i] and col_free[c]:
+            c = np.uintp(cols[k])  # an index known >= 0: no wrap-around test
+            if free and col_free[c]:
                 out[k] = grid_values[source[k]]
             elif square and c == i:
                 out[k] = 1.0
@@ -123,40 +123,39 @@ def _masked_values(pointer, cols, source, row_free, col_free, square, grid_value
 
 
 @numba.njit(cache=True)
-def _schur_pattern(p11, c11, p10, c10, p01, c01):
-    """Pattern of ``A11 - A10 diag(A00)^-1 A01``, columns increasing within each row: the row's
-    columns found by a scan of the range it touched; a velocity pair's second dof (see
-    :func:`_schur_values`) adds no column its first did not."""
-    n = p11.shape[0] - 1
-    mark = np.full(n, -1, dtype=np.int64)
+def _schur_pattern(rows, position, bs, near, k):
+    """Pattern of ``A11 - A10 diag(A00)^-1 A01`` for the pressure ``rows`` (global dofs), columns
+    increasing within each row (block numbering: ``position``).
+
+    ``near`` ``(nfy, nfx)``: the pattern's functions (all of a function's dofs are in it or none);
+    the blocks couple functions within ``k`` of each other on both axes (their stencil). So the
+    column of the pressure dof of function ``g`` is in the row of function ``f`` where a pattern
+    function ``m`` lies within ``k`` of both (through ``A10`` and ``A01``; ``m = f`` for ``A11``):
+    a count over the box of such ``m``, by 2-D prefix sums, for each ``g`` within ``2k`` of ``f``,
+    visited in increasing order."""
+    nfy, nfx = near.shape
+    total = np.zeros((nfy + 1, nfx + 1), dtype=np.int64)  # functions of the pattern in [0, j) x [0, i)
+    for j in range(nfy):
+        for i in range(nfx):
+            total[j + 1, i + 1] = total[j, i + 1] + total[j + 1, i] - total[j, i] + near[j, i]
+    n = rows.shape[0]
     pointer = np.zeros(n + 1, dtype=np.int32)
-    capacity = max(16, 4 * p11[n])
-    cols = np.empty(capacity, dtype=np.int32)
-    for i in range(n):
-        lo, hi = n, -1
-        for k in range(p11[i], p11[i + 1]):
-            j = c11[k]
-            mark[j] = i
-            lo, hi = min(lo, j), max(hi, j)
-        for k in range(p10[i], p10[i + 1], 2):
-            m = c10[k]
-            for q in range(p01[m], p01[m + 1]):
-                j = c01[q]
-                mark[j] = i
-                lo, hi = min(lo, j), max(hi, j)
-        start = pointer[i]
-        if start + (hi - lo + 1) > capacity:
-            capacity = max(2 * capacity, start + hi - lo + 1)
-            grown = np.empty(capacity, dtype=np.int32)
-            grown[:start] = cols[:start]
-            cols = grown
-        k = start
-        for j in range(lo, hi + 1):
-            if mark[j] == i:
-                cols[k] = j
-                k += 1
-        pointer[i + 1] = k
-    return pointer, cols[: pointer[n]].copy()
+    cols = np.empty(n * (4 * k + 1) ** 2, dtype=np.int32)
+    count = 0
+    for r in range(n):
+        f, component = rows[r] // bs, rows[r] % bs
+        fi, fj = f % nfx, f // nfx
+        for gj in range(max(fj - 2 * k, 0), min(fj + 2 * k, nfy - 1) + 1):
+            j0, j1 = max(max(fj, gj) - k, 0), min(min(fj, gj) + k, nfy - 1) + 1
+            for gi in range(max(fi - 2 * k, 0), min(fi + 2 * k, nfx - 1) + 1):
+                if not near[gj, gi]:
+                    continue
+                i0, i1 = max(max(fi, gi) - k, 0), min(min(fi, gi) + k, nfx - 1) + 1
+                if total[j1, i1] - total[j0, i1] - total[j1, i0] + total[j0, i0] > 0:
+                    cols[count] = position[bs * (gi + nfx * gj) + component]
+                    count += 1
+        pointer[r + 1] = count
+    return pointer, cols[:count].copy()
 
 
 @numba.njit(cache=True)
@@ -173,28 +172,36 @@ def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, di
         for k in range(p11[i], p11[i + 1]):
             acc[c11[k]] += v11[k]
         for k in range(p10[i], p10[i + 1], 2):
-            if v10[k] == 0.0 and v10[k + 1] == 0.0:  # a pair or a row not free this solve: adds nothing
+            a0, a1 = v10[k], v10[k + 1]
+            if a0 == 0.0 and a1 == 0.0:  # a pair or a row not free this solve: adds nothing
                 continue
             m = c10[k]
-            s0 = v10[k] / diagonal[m]
-            s1 = v10[k + 1] / diagonal[m + 1]
-            second = p01[m + 1] - p01[m]  # from the first dof's row to the second's
-            for q in range(p01[m], p01[m + 1]):
-                j = c01[q]
-                acc[j] -= s0 * v01[q]
-                acc[j] -= s1 * v01[q + second]
+            s0 = a0 / diagonal[m]
+            s1 = a1 / diagonal[m + 1]
+            first, last = p01[m], p01[m + 1]
+            second = last - first  # from the first dof's row to the second's
+            for q in range(first, last):
+                j = np.uintp(c01[q])  # an index known >= 0: no wrap-around test
+                partial = acc[j] - s0 * v01[q]
+                acc[j] = partial - s1 * v01[q + second]
         for k in range(pointer[i], pointer[i + 1]):
-            out[k] = acc[cols[k]]
-            acc[cols[k]] = 0.0
+            j = np.uintp(cols[k])
+            out[k] = acc[j]
+            acc[j] = 0.0
 
 
-def _padded(free: np.ndarray, bs: int, nfx: int, nfy: int) -> np.ndarray:
-    """The dofs (increasing) of the functions within :data:`PATTERN_MARGIN` of a free dof's function
+@numba.njit(cache=True)
+def _near(free, bs, nfx, nfy, margin):
+    """The functions ``(nfy, nfx)`` within ``margin`` of a free dof's function on both axes
     (structured numbering: one rank)."""
-    near = np.zeros(nfx * nfy, dtype=bool)
-    near[free // bs] = True
-    near = dilate(near.reshape(nfy, nfx), PATTERN_MARGIN).ravel()
-    return (bs * np.flatnonzero(near)[:, None] + np.arange(bs)).ravel()
+    near = np.zeros((nfy, nfx), dtype=np.bool_)
+    for g in free:
+        f = g // bs
+        fi, fj = f % nfx, f // nfx
+        for j in range(max(fj - margin, 0), min(fj + margin, nfy - 1) + 1):
+            for i in range(max(fi - margin, 0), min(fi + margin, nfx - 1) + 1):
+                near[j, i] = True
+    return near
 
 
 class FreeBlocks:
@@ -223,7 +230,8 @@ class FreeBlocks:
         if len(fields) != 2 or fields[names[0]] != 2:
             raise ValueError(f"the blocks need a two-component field and another, not {fields}")
         field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
-        pattern = _padded(self.seed, space.bs, space.basis.nfx, space.basis.nfy)
+        near = _near(self.seed, space.bs, space.basis.nfx, space.basis.nfy, PATTERN_MARGIN)
+        pattern = (space.bs * np.flatnonzero(near)[:, None] + np.arange(space.bs)).ravel()  # the dofs, increasing
         field, position, rows0, rows1 = _numbering(pattern, field_of_component, lay.num_owned_rows)
         self._field = field
         self.order = np.concatenate([rows0, rows1])
@@ -242,8 +250,8 @@ class FreeBlocks:
         self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
                                                        comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
         self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
-        pointers_and_columns = [self._blocks[i, j][:2] for i, j in ((1, 1), (1, 0), (0, 1))]
-        self._schur_pointer, self._schur_cols = _schur_pattern(*[a for pc in pointers_and_columns for a in pc])
+        k = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2  # the stencil's reach
+        self._schur_pointer, self._schur_cols = _schur_pattern(rows1, position, space.bs, near, k)
         self._schur_values = np.empty(len(self._schur_cols))
         self._fill_schur()
         n1 = len(rows1)
@@ -251,6 +259,8 @@ class FreeBlocks:
             (n1, n1), (self._schur_pointer, self._schur_cols, self._schur_values), comm=PETSc.COMM_SELF)
         isets = self.nest.getNestISs()[0]
         self.index_sets = [(names[0], isets[0]), (names[1], isets[1])]
+        # a right-hand side and a solution in the rows of nest, kept with the pattern
+        self.vectors = tuple(PETSc.Vec().createSeq(len(self.order), comm=PETSc.COMM_SELF) for _ in range(2))
 
     def covers(self, free: np.ndarray) -> bool:
         """Whether every one of the ``free`` dofs is in the pattern."""
@@ -283,9 +293,10 @@ class FreeBlocks:
         _schur_values(self._schur_pointer, self._schur_cols, *self._block_arrays(1, 1), *self._block_arrays(1, 0),
                       *self._block_arrays(0, 1), self._blocks[0, 0][3][self._diagonal], self._schur_values)
 
-    def restrict(self, vector: np.ndarray) -> np.ndarray:
-        """A vector by global dof in the rows of ``nest``, zero on the dofs not free."""
-        return np.where(self._free, vector[self.order], 0.0)
+    def restrict(self, vector: np.ndarray, out: np.ndarray):
+        """A vector by global dof into ``out`` in the rows of ``nest``, zero on the dofs not free."""
+        np.take(vector, self.order, out=out)
+        out[~self._free] = 0.0
 
     def extend(self, solution: np.ndarray, out: np.ndarray):
         """The free rows of a solution in the rows of ``nest`` into ``out``, by global dof."""
@@ -297,3 +308,5 @@ class FreeBlocks:
                 m.destroy()
         self.nest.destroy()
         self.schur.destroy()
+        for vector in self.vectors:
+            vector.destroy()

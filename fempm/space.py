@@ -92,6 +92,9 @@ class Space:
         self.fields = {name: int(n) for name, n in fields.items()}
         self.bs = sum(self.fields.values())
         self.numbering = numbering(basis)
+        starts = np.cumsum([0, *self.fields.values()])
+        self._slices = {name: slice(int(a), int(b)) for name, a, b in zip(self.fields, starts[:-1], starts[1:])}
+        self._components = {}  # by tuple of names (components)
 
     def __repr__(self) -> str:
         return f"Space({self.basis.name}, {self.fields})"
@@ -102,12 +105,20 @@ class Space:
 
     def field_slice(self, name: str) -> slice:
         """The components of field ``name`` within a block of ``bs`` dofs."""
-        offset = 0
-        for field, n in self.fields.items():
-            if field == name:
-                return slice(offset, offset + n)
-            offset += n
-        raise InputError(f"space has no field {name!r}; its fields are {list(self.fields)}")
+        try:
+            return self._slices[name]
+        except KeyError:
+            raise InputError(f"space has no field {name!r}; its fields are {list(self.fields)}") from None
+
+    def components(self, *names: str) -> np.ndarray:
+        """The components of the named fields within a block of ``bs`` dofs, field after field
+        (read-only, made once per tuple of names)."""
+        index = self._components.get(names)
+        if index is None:
+            index = np.concatenate([np.arange(self.bs)[self.field_slice(name)] for name in names])
+            index.setflags(write=False)
+            self._components[names] = index
+        return index
 
     def wall_dofs(self, name: str, component: int, walls: str = "lrbt") -> np.ndarray:
         """Global indices of owned dofs of one component of a field on the given walls.

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numba
 import numpy as np
 import ufl
 
@@ -24,6 +25,18 @@ from fempm.timing import PhaseTimes
 from fempm.walls import FreeDofs, Walls
 
 __all__ = ["GridSystem", "StepForms"]
+
+
+_acceleration, _end_velocity = (numba.njit(cache=True)(f) for f in (newmark.acceleration, newmark.end_velocity))
+
+
+@numba.njit(cache=True)
+def _end_state(du, v, a, dt, beta, gamma, v_new, a_new):
+    """:mod:`fempm.newmark`'s ``a_{n+1}`` and ``v_{n+1}`` entry by entry (its own functions, compiled)."""
+    for f in range(du.shape[0]):
+        for c in range(du.shape[1]):
+            a_new[f, c] = _acceleration(du[f, c], v[f, c], a[f, c], dt, beta)
+            v_new[f, c] = _end_velocity(v[f, c], a[f, c], a_new[f, c], dt, gamma)
 
 
 class StepForms:
@@ -182,11 +195,10 @@ class GridSystem:
     def end_state(self) -> tuple[np.ndarray, np.ndarray]:
         """``v_{n+1}`` and ``a_{n+1}`` on the grid from the solved ``du`` (Newmark); keeps ``v_{n+1}``
         and the pressure in :attr:`velocity` and :attr:`pressure`."""
-        s, dt = self.scheme, self.dt
-        du = self.U.field("u")
+        s = self.scheme
         v, a = self.fields["grid_velocity"].values, self.fields["grid_acceleration"].values
-        a_new = newmark.acceleration(du, v, a, dt, s.beta)
-        v_new = newmark.velocity(du, v, a, dt, s.beta, s.gamma, a_new=a_new)
+        v_new, a_new = np.empty_like(v), np.empty_like(a)
+        _end_state(self.U.field("u"), v, a, float(self.dt), float(s.beta), float(s.gamma), v_new, a_new)
         self.velocity.values[:] = v_new
         self.pressure.values[:] = self.U.field("p")
         return v_new, a_new

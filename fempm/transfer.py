@@ -142,6 +142,19 @@ def flip(velocity: np.ndarray, change: np.ndarray, new: np.ndarray, pic_blend: f
     return (1 - pic_blend) * (velocity + change) + pic_blend * new
 
 
+_flip = numba.njit(cache=True)(flip)  # the same formula on numbers, for the kernels
+
+
+@numba.njit(cache=True)
+def _flip_state(at, dv, da, v, a, velocity, acceleration, share):
+    """:func:`flip` of the particles' two-component ``velocity`` and ``acceleration`` in place, the
+    changes and new values read from ``at`` ``(n, bs)`` at the components from ``dv``, ``da``, ``v``, ``a``."""
+    for p in range(at.shape[0]):
+        for c in range(2):
+            velocity[p, c] = _flip(velocity[p, c], at[p, dv + c], at[p, v + c], share)
+            acceleration[p, c] = _flip(acceleration[p, c], at[p, da + c], at[p, a + c], share)
+
+
 def _jets(gf: GridFunction, particles, order: int) -> np.ndarray:
     phi, lfun = gf.space.tabulate_particles(particles, order, exact=False)
     out = np.empty((len(particles), len(jet_indices(order)), gf.space.bs))
@@ -254,26 +267,34 @@ def affine_particles_to_grid(space: Space, particles, values, gradients, name: s
 
 
 @numba.njit(cache=True)
-def _apic_moments(phi0, lfun, nodes, x, grid_values, B, D):
-    """``B[p, c] = sum_l phi0[p, l] f[c] (x_f - x_p)`` and ``D[p] = sum_l phi0[p, l] (x_f - x_p)(x_f - x_p)^T``."""
-    nc = grid_values.shape[1]
-    for p in range(phi0.shape[0]):
-        for l in range(phi0.shape[1]):
+def _apic_moments(phi, lfun, nodes, x, grid_values, components, B, D):
+    """``B[p, c] = sum_l phi[p, 0, l] f[components[c]] (x_f - x_p)`` and
+    ``D[p] = sum_l phi[p, 0, l] (x_f - x_p)(x_f - x_p)^T``, each sum over ``l`` in order from 0."""
+    nc = components.shape[0]
+    b = np.empty((nc, 2))
+    for p in range(lfun.shape[0]):
+        d00 = d01 = d11 = 0.0
+        b[:] = 0.0
+        for l in range(lfun.shape[1]):
             f = lfun[p, l]
-            w = phi0[p, l]
+            w = phi[p, 0, l]
             rx, ry = nodes[f, 0] - x[p, 0], nodes[f, 1] - x[p, 1]
-            D[p, 0, 0] += w * rx * rx
-            D[p, 0, 1] += w * rx * ry
-            D[p, 1, 1] += w * ry * ry
+            d00 += w * rx * rx
+            d01 += w * rx * ry
+            d11 += w * ry * ry
             for c in range(nc):
-                B[p, c, 0] += w * grid_values[f, c] * rx
-                B[p, c, 1] += w * grid_values[f, c] * ry
-        D[p, 1, 0] = D[p, 0, 1]
+                wf = w * grid_values[f, components[c]]
+                b[c, 0] += wf * rx
+                b[c, 1] += wf * ry
+        D[p, 0, 0], D[p, 0, 1], D[p, 1, 0], D[p, 1, 1] = d00, d01, d01, d11
+        B[p] = b
 
 
-def affine_moments(space: Space, particles, grid_values: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """APIC's ``D_p = sum_i N_i(x_p) (x_i - x_p)(x_i - x_p)^T`` ``(n, 2, 2)`` and, for grid
-    values ``(num_local_functions, nc)``, ``B_p = sum_i f_i N_i(x_p) (x_i - x_p)^T`` ``(n, nc, 2)``.
+def affine_moments(space: Space, particles, grid_values: np.ndarray | None = None,
+                   components=slice(None)) -> tuple[np.ndarray, np.ndarray]:
+    """APIC's ``D_p = sum_i N_i(x_p) (x_i - x_p)(x_i - x_p)^T`` ``(n, 2, 2)`` and, for the
+    ``components`` of grid values ``(num_local_functions, bs)`` (``nc`` of them),
+    ``B_p = sum_i f_i N_i(x_p) (x_i - x_p)^T`` ``(n, nc, 2)``.
 
     ``D_p`` is computed particle by particle, so that it is exact for the clamped wall
     B-splines and for Q1 (``h^2/4 I`` only for interior quadratic B-splines). It is
@@ -281,13 +302,12 @@ def affine_moments(space: Space, particles, grid_values: np.ndarray | None = Non
     single function is non-zero (a particle on a clamped wall, or on a Q1 node), where
     ``B_p`` vanishes alike.
     """
-    phi, lfun = space.tabulate_particles(particles, order=0)
-    grid_values = np.zeros((1, 0)) if grid_values is None else np.ascontiguousarray(grid_values)
-    nc = grid_values.shape[1]
-    B = np.zeros((len(particles), nc, 2))
-    D = np.zeros((len(particles), 2, 2))
-    _apic_moments(np.ascontiguousarray(phi[:, 0, :]), lfun, function_nodes(space), np.ascontiguousarray(particles.x),
-                  grid_values, B, D)
+    phi, lfun = space.tabulate_particles(particles, order=0, exact=False)
+    grid_values = np.zeros((1, 0)) if grid_values is None else np.asarray(grid_values, dtype=np.float64)
+    index = np.arange(grid_values.shape[1])[components]
+    B = np.empty((len(particles), len(index), 2))
+    D = np.empty((len(particles), 2, 2))
+    _apic_moments(phi, lfun, function_nodes(space), np.ascontiguousarray(particles.x), grid_values, index, B, D)
     return D, B
 
 
@@ -309,20 +329,28 @@ def affine_grid_to_particles(gf: GridFunction, particles, kind: str = "apic", je
     values = jets[:, 0, components]
     if kind == "tpic":
         return values, gradient(jets, gf.space.grid.h)[:, components]
-    D, B = affine_moments(gf.space, particles, np.ascontiguousarray(gf.values[:, components]))
+    D, B = affine_moments(gf.space, particles, gf.values, components)
     return values, B @ _inverse_moments(D, gf.space.grid.h)
 
 
 def _inverse_moments(D: np.ndarray, h: float) -> np.ndarray:
     """``D^-1`` of symmetric 2 x 2 moments; a vanishing moment (a particle on a clamped wall or a
     Q1 node, where B vanishes too) is floored at ``1e-14 h^2``, its part of ``C`` then zero."""
-    floor = 1e-14 * h * h
-    a, b, d = np.maximum(D[:, 0, 0], floor), D[:, 0, 1], np.maximum(D[:, 1, 1], floor)
-    det = a * d - b * b
     inverse = np.empty_like(D)
-    inverse[:, 0, 0], inverse[:, 1, 1] = d / det, a / det
-    inverse[:, 0, 1] = inverse[:, 1, 0] = -b / det
+    _invert_moments(D, 1e-14 * h * h, inverse)
     return inverse
+
+
+@numba.njit(cache=True)
+def _invert_moments(D, floor, inverse):
+    """:func:`_inverse_moments` particle by particle (``max`` keeps a NaN, as ``np.maximum``)."""
+    for p in range(D.shape[0]):
+        a, b, d = D[p, 0, 0], D[p, 0, 1], D[p, 1, 1]
+        a = floor if a < floor else a
+        d = floor if d < floor else d
+        det = a * d - b * b
+        inverse[p, 0, 0], inverse[p, 1, 1] = d / det, a / det
+        inverse[p, 0, 1] = inverse[p, 1, 0] = -b / det
 
 
 def angular_momentum(space: Space, particles, gradients: np.ndarray | None = None, centre=(0.0, 0.0)) -> float:
@@ -377,13 +405,31 @@ def project_state(particles, kind: str, out: GridFunction) -> GridFunction:
     """P2G of mass, momentum, mass-weighted acceleration and particle counts into ``out``
     (fields ``m``, ``mv``, ``ma``, ``count``): ``(m v)_i = sum_p m_p N_i(x_p) (v_p + C_p (x_i - x_p))``,
     ``C_p`` the particle's affine part (none for ``flip``), likewise the acceleration."""
-    mass = particles["mass"][:, None]
-    values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
     if kind == "flip":
+        mass = particles["mass"][:, None]
+        values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
         return particles_to_grid(out.space, particles, values, counts=True, out=out)
-    gradients = mass[:, :, None] * np.concatenate(
-        [np.zeros((len(particles), 1, 2)), particles[AFFINE_FIELDS[0]], particles[AFFINE_FIELDS[1]]], axis=1)
+    values, gradients = _weighted_state(particles["mass"], particles["velocity"], particles["acceleration"],
+                                        particles[AFFINE_FIELDS[0]], particles[AFFINE_FIELDS[1]])
     return affine_particles_to_grid(out.space, particles, values, gradients, counts=True, out=out)
+
+
+@numba.njit(cache=True)
+def _weighted_state(mass, velocity, acceleration, affine_velocity, affine_acceleration):
+    """The values ``[m, m v, m a]`` ``(n, 5)`` and affine parts ``[0, m C_v, m C_a]`` ``(n, 5, 2)`` that
+    :func:`project_state` spreads."""
+    n = mass.shape[0]
+    values, gradients = np.empty((n, 5)), np.zeros((n, 5, 2))
+    for p in range(n):
+        m = mass[p]
+        values[p, 0] = m
+        for c in range(2):
+            values[p, 1 + c] = m * velocity[p, c]
+            values[p, 3 + c] = m * acceleration[p, c]
+            for d in range(2):
+                gradients[p, 1 + c, d] = m * affine_velocity[p, c, d]
+                gradients[p, 3 + c, d] = m * affine_acceleration[p, c, d]
+    return values, gradients
 
 
 def update_state(g2p: GridFunction, jets: np.ndarray, particles, kind: str, share: float):
@@ -396,10 +442,8 @@ def update_state(g2p: GridFunction, jets: np.ndarray, particles, kind: str, shar
     as the velocity, so that the next step starts from one transferred pair.
     """
     space = g2p.space
-    at = {name: jets[:, 0, space.field_slice(name)] for name in ("dv", "da", "v", "a")}
-    particles["velocity"][:] = flip(particles["velocity"], at["dv"], at["v"], share)
-    particles["acceleration"][:] = flip(particles["acceleration"], at["da"], at["a"], share)
+    _flip_state(jets[:, 0], *(space.field_offset(name) for name in ("dv", "da", "v", "a")), particles["velocity"],
+                particles["acceleration"], float(share))
     if kind != "flip":
-        v_and_a = np.r_[space.field_slice("v"), space.field_slice("a")]
-        _, affine = affine_grid_to_particles(g2p, particles, affine_rule(kind), jets, v_and_a)
+        _, affine = affine_grid_to_particles(g2p, particles, affine_rule(kind), jets, space.components("v", "a"))
         particles[AFFINE_FIELDS[0]][:], particles[AFFINE_FIELDS[1]][:] = affine[:, :2], affine[:, 2:]

@@ -29,6 +29,7 @@ no sign to separate by, and every wall dof stays held (two-sided). Moving walls 
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from fempm.options import Physics
@@ -76,7 +77,20 @@ class Walls:
         self._state = {}
         self.stops = 0
         self._held_for = None  # the active set the held dofs were made for
+        self._fixed_positions = np.searchsorted(owned, self._fixed)
+        self._value_at = np.zeros(len(owned))  # the velocity held at each owned dof, if held
+        self._value_at[self._fixed_positions] = self._fixed_values
         self._set_held()
+        # fixed for the run: whether any rank has contact dofs, the contact dofs' structured numbers,
+        # and the scale of the tolerances
+        self._any_contact = space.comm.allreduce(len(self.normal)) > 0
+        functions = space.numbering.local_functions[self.normal // space.bs]
+        self._contact_ids = functions * space.bs + self.normal % space.bs
+        self._gravity = max(float(np.linalg.norm(physics.gravity)), 1.0)
+        grid, margin = space.grid, 1e-9 * space.grid.h  # where keep_inside stops particles
+        impermeable = {side: kind in ("slip", "no-slip") for side, kind in self.conditions.items()}
+        self._inside = (np.where([impermeable["left"], impermeable["bottom"]], grid.lower + margin, -np.inf),
+                        np.where([impermeable["right"], impermeable["top"]], grid.upper - margin, np.inf))
 
     def _contact_of(self, owned: np.ndarray):
         """The normal dofs of slip and no-slip sides at rest (positions among the owned dofs), the
@@ -113,12 +127,12 @@ class Walls:
             return
         self._held_for = self.active.copy()
         partners = self.partner[self.active]
-        contact = np.concatenate([self.normal[self.active], partners[partners >= 0]])
-        dofs = np.concatenate([self._fixed, self._owned[contact]])
-        values = np.concatenate([self._fixed_values, np.zeros(len(contact))])
-        dofs, first = np.unique(dofs, return_index=True)
-        self.dofs, self.values = dofs, values[first]
-        self.positions = np.searchsorted(self._owned, self.dofs)
+        held = np.zeros(len(self._owned), dtype=bool)  # by position among the owned dofs (increasing)
+        held[self._fixed_positions] = True
+        held[self.normal[self.active]] = True
+        held[partners[partners >= 0]] = True
+        self.positions = np.flatnonzero(held)
+        self.dofs, self.values = self._owned[self.positions], self._value_at[self.positions]
         bs, first = self.space.bs, self.space.field_offset(self.field)
         # the same dofs in a two-component grid function (a velocity or an acceleration)
         self._vector_index = self.positions // bs * 2 + self.positions % bs - first
@@ -128,7 +142,7 @@ class Walls:
         ``FORCE_TOLERANCE rho |g| h^2`` (a thousandth of a cell of water's weight), and the
         displacement into a wall below which a free dof stays free, ``SPEED_TOLERANCE sqrt(|g| h) dt``;
         ``|g|`` at least 1 m/s^2 (a case without gravity keeps a scale)."""
-        g, h = max(float(np.linalg.norm(self.physics.gravity)), 1.0), self.space.grid.h
+        g, h = self._gravity, self.space.grid.h
         return FORCE_TOLERANCE * density * g * h**2, SPEED_TOLERANCE * np.sqrt(g * h) * dt
 
     def start_step(self, keep: np.ndarray, velocity: GridFunction):
@@ -140,7 +154,7 @@ class Walls:
         step's active set, with the dofs that were dry then held, and those whose projected
         velocity enters the wall faster than ``SPEED_TOLERANCE sqrt(|g| h)``; without, every wall dof.
         """
-        if not self.one_sided or self.space.comm.allreduce(len(self.normal)) == 0:
+        if not self.one_sided or not self._any_contact:
             return
         dry = ~keep.reshape(-1, self.space.bs)[:, self.space.field_offset(self.field)]
         self.free_surface = self.space.comm.allreduce(int(np.count_nonzero(dry))) > 0
@@ -162,7 +176,7 @@ class Walls:
         ``reaction``: the residual at the solution at the contact dofs (:attr:`normal`, positions among
         the owned dofs); ``displacement``: the solved ``du`` at the owned dofs.
         """
-        if not self.one_sided or self.space.comm.allreduce(len(self.normal)) == 0:
+        if not self.one_sided or not self._any_contact:
             return
         if not self.free_surface:  # two-sided this step; the state as start_step left it
             self._gather_state()
@@ -175,31 +189,27 @@ class Walls:
         self.released += int(np.count_nonzero(pull))
         self._gather_state()
 
-    def _ids(self) -> np.ndarray:
-        """Structured numbers (function * bs + component) of the contact dofs: the same whatever the ranks."""
-        functions = self.space.numbering.local_functions[self.normal // self.space.bs]
-        return functions * self.space.bs + self.normal % self.space.bs
-
     def _gather_state(self):
-        ids, comm = self._ids(), self.space.comm
-        gather = lambda mask: np.sort(np.concatenate(comm.allgather(ids[mask]) if comm.size > 1  # noqa: E731
-                                                     else [ids[mask]])).tolist()
+        """Every rank's released and dry contact dofs (structured numbers: the same whatever the
+        ranks), by rank; sorted into lists only when a checkpoint asks (:meth:`contact_state`)."""
+        ids, comm = self._contact_ids, self.space.comm
+        gather = lambda mask: comm.allgather(ids[mask]) if comm.size > 1 else [ids[mask]]  # noqa: E731
         self._state = {"walls_released": gather(~self.active), "walls_dry": gather(~self.wet)}
 
     def contact_state(self) -> dict:
         """The active set after the last step: ``walls_released`` and ``walls_dry``, the structured
         numbers of the released and of the dry contact dofs, the same on every rank (not collective:
         gathered at each :meth:`update`; JSON-able lists, for a checkpoint). Empty before the first step."""
-        return dict(self._state)
+        return {k: np.sort(np.concatenate(parts)).tolist() for k, parts in self._state.items()}
 
     def restore_contact(self, state: dict | None):
         """Back to a :meth:`contact_state`, or a table holding it (without: every wall dof held, all
         dry, as at the start)."""
-        ids = self._ids()
+        ids = self._contact_ids
         state = {k: state[k] for k in ("walls_released", "walls_dry") if k in (state or {})}
         self.active = ~np.isin(ids, state.get("walls_released", []))
         self.wet = ~np.isin(ids, state["walls_dry"]) if "walls_dry" in state else np.zeros(len(ids), bool)
-        self._state = state
+        self._state = {k: [np.asarray(v, dtype=np.int64)] for k, v in state.items()}
         self._set_held()
 
     def _held(self) -> tuple[np.ndarray, np.ndarray]:
@@ -257,15 +267,22 @@ class Walls:
         if self.physics.recycle:
             width = grid.upper[0] - grid.lower[0]
             x[:, 0] = grid.lower[0] + np.mod(x[:, 0] - grid.lower[0], width)
-        margin = 1e-9 * grid.h
-        impermeable = {side: kind in ("slip", "no-slip") for side, kind in self.conditions.items()}
-        low = np.where([impermeable["left"], impermeable["bottom"]], grid.lower + margin, -np.inf)
-        high = np.where([impermeable["right"], impermeable["top"]], grid.upper - margin, np.inf)
-        outside = np.any((x < low) | (x > high), axis=1)
-        if np.any(outside):
-            self.stops += int(outside.sum())
+        low, high = self._inside
+        stopped = _count_outside(x, low, high)
+        if stopped:
+            self.stops += stopped
             x = np.clip(x, low, high)
         return x
+
+
+@numba.njit(cache=True)
+def _count_outside(x, low, high):
+    """The points ``x`` ``(n, 2)`` below ``low`` or above ``high`` in a coordinate (NaN is neither)."""
+    count = 0
+    for p in range(x.shape[0]):
+        if x[p, 0] < low[0] or x[p, 0] > high[0] or x[p, 1] < low[1] or x[p, 1] > high[1]:
+            count += 1
+    return count
 
 
 class FreeDofs:
@@ -285,13 +302,14 @@ class FreeDofs:
         corner = space.numbering.local_index[0]  # the lower-left function
         owns_corner = 0 <= corner < space.numbering.num_owned
         self._pin = corner * space.bs + self._pressure if owns_corner else None
+        self._closed = walls.physics.closed
         self.mask = np.ones(space.num_owned_dofs, dtype=bool)
 
     def select(self, keep: np.ndarray) -> np.ndarray:
         """Global numbers of the free dofs, given ``keep`` (boolean per owned dof; changed in place)."""
         keep[self.walls.positions] = False
-        if self.walls.physics.closed:
-            pressure_held = np.count_nonzero(~keep.reshape(-1, self.space.bs)[:, self._pressure])
+        if self._closed:
+            pressure_held = int(np.count_nonzero(~keep.reshape(-1, self.space.bs)[:, self._pressure]))
             if self.space.comm.allreduce(pressure_held) == 0 and self._pin is not None:
                 keep[self._pin] = False
         self.mask = keep
