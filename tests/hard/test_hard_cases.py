@@ -122,8 +122,10 @@ def test_dam_break_of_a_very_viscous_fluid(full):
     stays near free fall's)."""
     o = measured("viscous", full)
     assert_sound(o, 800, speed_ratio=1.08, energy_max=1.0 + bound(full, EXACT, 1e-4),
-                 energy_rise=bound(full, EXACT, 1e-4))  # measured 1.0722, 1.0, 0 (from a_0 = 0 1.0783; FLIP/PIC 1.059)
-    # measured 1.090 (0.6 s), 1.07 (3 s) (from a_0 = 0: 1.090); FLIP/PIC 1.055 (0.6 s), 1.06 (3 s)
+                 energy_rise=bound(full, EXACT, 1e-4))  # measured 1.0648, 1.0, 0 (before the crowding tolerance
+    # 1.0722; from a_0 = 0 1.0783; FLIP/PIC 1.059)
+    # measured 1.095 (0.6 s), 1.07 (3 s) (before the crowding tolerance 1.090, 1.07; from a_0 = 0: 1.090); FLIP/PIC
+    # 1.055 (0.6 s), 1.06 (3 s)
     assert 1.05 <= cell_ratio(o) <= 1.10
 
 
