@@ -8,7 +8,9 @@ Four cases, each run with both transfers (``fempm.cases.vortices.VARIANTS``):
   unit time at nu = 1e-6 and Re = 100, two grids, three steps (U dt / h = 0.4, 0.2, 0.1);
 * the Gresho vortex (``fempm.cases.vortices.gresho``): kinetic energy, angular momentum and the
   u_theta error, two grids;
-* the dam-break column at rest (``fempm.cases.column.rest``): volume and speeds.
+* the dam-break column at rest (``fempm.cases.column.rest``): volume and speeds;
+* where the Taylor-Green loss comes from (affine-FLIP, nu = 1e-6, U dt / h = 0.4): three grids at
+  2 x 2, 3 x 3 and 4 x 4 particles per cell, and at 2 x 2 without PSPG.
 
 The results go to ``docs/verification/transfers.json`` and, through the template
 ``templates/verification-transfers.md``, to the transfers section of ``docs/verification.md``
@@ -66,11 +68,13 @@ def studies(full: bool) -> dict:
         + [(v, n, 0.4 / n, 1e-6, 1.0) for v in vortices.VARIANTS for n in (32, 64)],  # one turnover
         "gresho": [(v, n, 0.4 / n, 3.0 if full else 0.5) for v in vortices.VARIANTS for n in (32, 64)],
         "column": [(v, 10.0 if full else 1.0) for v in vortices.VARIANTS],
+        "loss_sources": [("affine-FLIP", n, 0.4 / n, 1e-6, 0.25, 1.0, "bspline", per_cell, pspg)
+                         for per_cell, pspg in ((2, True), (3, True), (4, True), (2, False)) for n in (32, 64, 128)],
     }
 
 
 RUNS = {"dambreak": dambreak_front, "taylor_green": vortices.taylor_green, "gresho": vortices.gresho,
-        "column": column.rest}
+        "column": column.rest, "loss_sources": vortices.taylor_green}
 
 
 def _outcome(r: dict) -> str:
@@ -80,6 +84,18 @@ def _outcome(r: dict) -> str:
 def _made(case: dict) -> str:
     return (f"`{case['command']}` on {case['date']} UTC, fempm {case['commit']}, {case['machine']} shared with other "
             f"work ({case['seconds']:.0f} s).")
+
+
+def _loss_sources(rows: list[dict]) -> str:
+    """The Taylor-Green loss by grid (columns) for each particle count and PSPG setting (rows)."""
+    cells = sorted({r["cells"] for r in rows})
+    settings = list(dict.fromkeys((r["per_cell"], r["pspg"]) for r in rows))
+    loss = {(r["per_cell"], r["pspg"], r["cells"]): r for r in rows}
+    return pages.table(["particles per cell", "PSPG"] + [f"{n}²" for n in cells], [
+        [f"{k} × {k}", "on" if pspg else "off"] + [
+            f"{loss[k, pspg, n]['numerical']:.2e}" if loss[k, pspg, n]["status"] == "completed"
+            else _outcome(loss[k, pspg, n]) for n in cells]
+        for k, pspg in settings])
 
 
 def section(data: dict) -> str:
@@ -106,6 +122,7 @@ def section(data: dict) -> str:
             [r["variant"], r["basis"], f"{r['t']:g}", f"{100 * r['volume']:+.3f} %", f"{r['speed']:.1e}",
              f"{r['peak']:.1e}", f"{r['wall']:.0f}", _outcome(r)]
             for r in rows.get("column", [])]),
+        "loss_sources": _loss_sources(rows.get("loss_sources", [])),
     }
     made = {f"{case}_made": _made(data[case]) if case in data else "Not run yet." for case in RUNS}
     return pages.fill("verification-transfers.md", marker=MARKER, **tables, **made)

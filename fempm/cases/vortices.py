@@ -44,14 +44,15 @@ CENTRE = np.array([0.5, 0.5])
 
 
 def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
-               comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha) -> ImplicitSolver:
-    """The unit slip box filled with 2 x 2 particles per cell at the given velocity and acceleration
-    (functions of the positions returning ``(values (n, 2), gradients (n, 2, 2))``), with the volume
-    correction ``alpha``."""
+               comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha, per_cell: int = 2,
+               pspg: bool = Scheme.pspg) -> ImplicitSolver:
+    """The unit slip box filled with ``per_cell`` x ``per_cell`` particles per cell at the given
+    velocity and acceleration (functions of the positions returning ``(values (n, 2), gradients
+    (n, 2, 2))``), with the volume correction ``alpha`` and PSPG on or off."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
-    water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=2, density=RHO)
-    scheme = Scheme(dt=dt, alpha=alpha, initial_acceleration="given", **VARIANTS[variant])
+    water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=per_cell, density=RHO)
+    scheme = Scheme(dt=dt, alpha=alpha, pspg=pspg, initial_acceleration="given", **VARIANTS[variant])
     transfer.add_affine_fields(water, scheme.transfer)
     for name, field in (("velocity", velocity), ("acceleration", acceleration)):
         value, grad = field(water.x)
@@ -89,13 +90,14 @@ def _taylor_green_fields(U: float, nu: float):
 
 
 def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.25, U: float = 1.0,
-                 basis: str = "bspline") -> dict:
+                 basis: str = "bspline", per_cell: int = 2, pspg: bool = Scheme.pspg) -> dict:
     """The Taylor-Green vortex to ``end``: ``numerical`` is the fitted ``-d ln KE/dt - 4 pi^2 nu``.
 
     Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``ke_end`` and ``exact_end`` (KE over its
-    start), ``status``, ``cause``, ``t``, ``wall``.
+    start), ``status``, ``cause``, ``t``, ``wall``, and the run's ``per_cell`` and ``pspg``.
     """
-    solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha=0.0)
+    solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha=0.0,
+                        per_cell=per_cell, pspg=pspg)
     times, energy = [0.0], [kinetic_energy(solver.particles)]
 
     def each(s):
@@ -108,7 +110,8 @@ def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.
     viscous = 4 * np.pi**2 * nu
     return {"variant": variant, "cells": cells, "dt": dt, "nu": nu, "rate": rate, "viscous": viscous,
             "numerical": rate - viscous, "ke_end": float(ke[-1] / ke[0]), "exact_end": float(np.exp(-viscous * t[-1])),
-            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
+            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall,
+            "per_cell": per_cell, "pspg": pspg}
 
 
 # -- Gresho -----------------------------------------------------------------------------------------
