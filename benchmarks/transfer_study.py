@@ -10,7 +10,8 @@ Four cases, each run with both transfers (``fempm.cases.vortices.VARIANTS``):
   u_theta error, two grids;
 * the dam-break column at rest (``fempm.cases.column.rest``): volume and speeds;
 * where the Taylor-Green loss comes from (affine-FLIP, nu = 1e-6, U dt / h = 0.4): three grids at
-  2 x 2, 3 x 3 and 4 x 4 particles per cell, and at 2 x 2 without PSPG.
+  2 x 2, 3 x 3 and 4 x 4 particles per cell, and at 2 x 2 without PSPG; and how it grows in time
+  on 64² and 128².
 
 The results go to ``docs/verification/transfers.json`` and, through the template
 ``templates/verification-transfers.md``, to the transfers section of ``docs/verification.md``
@@ -70,11 +71,12 @@ def studies(full: bool) -> dict:
         "column": [(v, 10.0 if full else 1.0) for v in vortices.VARIANTS],
         "loss_sources": [("affine-FLIP", n, 0.4 / n, 1e-6, 0.25, 1.0, "bspline", per_cell, pspg)
                          for per_cell, pspg in ((2, True), (3, True), (4, True), (2, False)) for n in (32, 64, 128)],
+        "loss_growth": [("affine-FLIP", 64, 0.4 / 64, 1e-6, 0.5), ("affine-FLIP", 128, 0.4 / 128, 1e-6, 0.25)],
     }
 
 
 RUNS = {"dambreak": dambreak_front, "taylor_green": vortices.taylor_green, "gresho": vortices.gresho,
-        "column": column.rest, "loss_sources": vortices.taylor_green}
+        "column": column.rest, "loss_sources": vortices.taylor_green, "loss_growth": vortices.taylor_green}
 
 
 def _outcome(r: dict) -> str:
@@ -123,6 +125,9 @@ def section(data: dict) -> str:
              f"{r['peak']:.1e}", f"{r['wall']:.0f}", _outcome(r)]
             for r in rows.get("column", [])]),
         "loss_sources": _loss_sources(rows.get("loss_sources", [])),
+        "loss_growth": pages.table(["cells", "window", "U t / h at its end", "numerical dissipation (1/unit time)"], [
+            [r["cells"], f"{a:.3f}–{b:.3f}", f"{b * r['cells']:.0f}", f"{loss:.2e}"]
+            for r in rows.get("loss_growth", []) for a, b, loss in r["windows"]]),
     }
     made = {f"{case}_made": _made(data[case]) if case in data else "Not run yet." for case in RUNS}
     return pages.fill("verification-transfers.md", marker=MARKER, **tables, **made)

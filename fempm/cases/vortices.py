@@ -89,12 +89,26 @@ def _taylor_green_fields(U: float, nu: float):
     return velocity, acceleration
 
 
+#: the windows of equal length over which taylor_green also reports the loss (see _window_losses)
+WINDOWS = 5
+
+
+def _window_losses(t: np.ndarray, ke: np.ndarray, viscous: float, windows: int) -> list[tuple[float, float, float]]:
+    """``(start, end, -d ln KE/dt - viscous)`` over ``windows`` equal spans of the run, from the
+    energy at the steps nearest their ends: how the loss grows as the particles disorder."""
+    edges = np.searchsorted(t, np.linspace(t[0], t[-1], windows + 1))
+    edges = np.minimum(edges, len(t) - 1)
+    return [(float(t[a]), float(t[b]), float(-(np.log(ke[b]) - np.log(ke[a])) / (t[b] - t[a]) - viscous))
+            for a, b in zip(edges[:-1], edges[1:]) if t[b] > t[a]]
+
+
 def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.25, U: float = 1.0,
                  basis: str = "bspline", per_cell: int = 2, pspg: bool = Scheme.pspg) -> dict:
     """The Taylor-Green vortex to ``end``: ``numerical`` is the fitted ``-d ln KE/dt - 4 pi^2 nu``.
 
-    Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``ke_end`` and ``exact_end`` (KE over its
-    start), ``status``, ``cause``, ``t``, ``wall``, and the run's ``per_cell`` and ``pspg``.
+    Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``windows`` (the loss over each of
+    :data:`WINDOWS` equal spans), ``ke_end`` and ``exact_end`` (KE over its start), ``status``,
+    ``cause``, ``t``, ``wall``, and the run's ``per_cell`` and ``pspg``.
     """
     solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha=0.0,
                         per_cell=per_cell, pspg=pspg)
@@ -109,6 +123,7 @@ def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.
     rate = float(-np.polyfit(t, np.log(ke), 1)[0]) if len(t) > 2 else float("nan")
     viscous = 4 * np.pi**2 * nu
     return {"variant": variant, "cells": cells, "dt": dt, "nu": nu, "rate": rate, "viscous": viscous,
+            "windows": _window_losses(t, ke, viscous, WINDOWS),
             "numerical": rate - viscous, "ke_end": float(ke[-1] / ke[0]), "exact_end": float(np.exp(-viscous * t[-1])),
             "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall,
             "per_cell": per_cell, "pspg": pspg}
