@@ -272,13 +272,14 @@ class FreeBlocks:
         self.order = np.concatenate([rows0, rows1])
         self._sizes = (len(rows0), len(rows1))
         rows = (rows0, rows1)
-        self._blocks, self._places = {}, {}
+        self._blocks, self._places = {}, {}  # the places of the blocks the Schur complement reads
         for i in range(2):
             cut = _row_blocks(lay.indptr, lay.stencil, space.basis.nfx, space.basis.nfy, space.bs, rows[i], field,
                               position)
             for j, (pointer, cols, source, place) in enumerate(cut):
                 self._blocks[i, j] = (pointer, cols, source, np.empty(len(cols)))
-                self._places[i, j] = place
+                if i + j > 0:
+                    self._places[i, j] = place
         self._diagonal = _diagonal_positions(self._blocks[0, 0][0], self._blocks[0, 0][1])
         if np.any(self._diagonal < 0):
             raise ValueError("a velocity dof has no diagonal entry")
@@ -286,7 +287,7 @@ class FreeBlocks:
         self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
                                                        comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
         self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
-        self._reach = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2  # the stencil's
+        self._reach = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2  # the stencil's reach
         self._schur_pointer, self._schur_cols, self._in_box = _schur_pattern(rows1, position, space.bs, near,
                                                                              self._reach)
         self._schur_values = np.empty(len(self._schur_cols))
