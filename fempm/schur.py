@@ -58,9 +58,11 @@ def _numbering(free, field_of_component, num_dofs):
 def _row_blocks(indptr, stencil, nfx, nfy, bs, rows, field, position):
     """CSR patterns of the two blocks of ``rows``: the pattern's dofs (``field`` >= 0) among those of
     the functions in the stencil of the row's function, by field; row pointers, columns (block
-    numbering, increasing as the grid matrix's are) and every entry's place in the grid matrix's
-    values (-1 in a row the matrix does not store: rows only near the water). The pattern follows
-    from the functions alone, whichever rows the matrix stores."""
+    numbering, increasing as the grid matrix's are), every entry's place in the grid matrix's
+    values (-1 in a row the matrix does not store: rows only near the water) and the place of its
+    column's function in the row's function's stencil (``(di + k) + (2k + 1) (dj + k)``, ``k`` the
+    stencil's reach). The pattern follows from the functions alone, whichever rows the matrix
+    stores."""
     n = rows.shape[0]
     width = int(np.sqrt(stencil.shape[1]) + 0.5)
     k = (width - 1) // 2
@@ -68,6 +70,7 @@ def _row_blocks(indptr, stencil, nfx, nfy, bs, rows, field, position):
     pointer0, pointer1 = np.zeros(n + 1, dtype=np.int32), np.zeros(n + 1, dtype=np.int32)
     cols0, cols1 = np.empty(capacity, dtype=np.int32), np.empty(capacity, dtype=np.int32)
     source0, source1 = np.empty(capacity, dtype=np.int64), np.empty(capacity, dtype=np.int64)
+    place0, place1 = np.empty(capacity, dtype=np.int32), np.empty(capacity, dtype=np.int32)
     count0 = count1 = 0
     for i in range(n):
         r = rows[i]
@@ -76,22 +79,25 @@ def _row_blocks(indptr, stencil, nfx, nfy, bs, rows, field, position):
         stored = indptr[r + 1] > indptr[r]
         for gj in range(max(fj - k, 0), min(fj + k, nfy - 1) + 1):
             for gi in range(max(fi - k, 0), min(fi + k, nfx - 1) + 1):
-                base = indptr[r] + bs * stencil[f, (gi - fi + k) + width * (gj - fj + k)] if stored else -1
+                place = (gi - fi + k) + width * (gj - fj + k)
+                base = indptr[r] + bs * stencil[f, place] if stored else -1
                 for D in range(bs):
                     c = bs * (gi + nfx * gj) + D
                     b = field[c]
                     if b == 0:
                         cols0[count0] = position[c]
                         source0[count0] = base + D if stored else -1
+                        place0[count0] = place
                         count0 += 1
                     elif b == 1:
                         cols1[count1] = position[c]
                         source1[count1] = base + D if stored else -1
+                        place1[count1] = place
                         count1 += 1
         pointer0[i + 1] = count0
         pointer1[i + 1] = count1
-    return ((pointer0, cols0[:count0].copy(), source0[:count0].copy()),
-            (pointer1, cols1[:count1].copy(), source1[:count1].copy()))
+    return ((pointer0, cols0[:count0].copy(), source0[:count0].copy(), place0[:count0].copy()),
+            (pointer1, cols1[:count1].copy(), source1[:count1].copy(), place1[:count1].copy()))
 
 
 @numba.njit(cache=True)
@@ -111,21 +117,23 @@ def _masked_values(pointer, cols, source, row_free, col_free, square, grid_value
     """A block's values: the grid matrix's where row and column are free; elsewhere the identity
     (``square``: a diagonal block) or zero."""
     for i in range(pointer.shape[0] - 1):
-        free = row_free[i]
-        for k in range(pointer[i], pointer[i + 1]):
-            c = np.uintp(cols[k])  # an index known >= 0: no wrap-around test
-            if free and col_free[c]:
-                out[k] = grid_values[source[k]]
-            elif square and c == i:
-                out[k] = 1.0
-            else:
-                out[k] = 0.0
+        start, stop = pointer[i], pointer[i + 1]
+        if row_free[i]:  # (its diagonal entry's column is free too)
+            for k in range(start, stop):
+                out[k] = grid_values[source[k]] if col_free[np.uintp(cols[k])] else 0.0  # an index >= 0
+        else:
+            out[start:stop] = 0.0
+            if square:
+                for k in range(start, stop):
+                    if cols[k] == i:
+                        out[k] = 1.0
 
 
 @numba.njit(cache=True)
 def _schur_pattern(rows, position, bs, near, k):
     """Pattern of ``A11 - A10 diag(A00)^-1 A01`` for the pressure ``rows`` (global dofs), columns
-    increasing within each row (block numbering: ``position``).
+    increasing within each row (block numbering: ``position``), and every entry's place in its
+    row's box (:func:`_schur_values`).
 
     ``near`` ``(nfy, nfx)``: the pattern's functions (all of a function's dofs are in it or none);
     the blocks couple functions within ``k`` of each other on both axes (their stencil). So the
@@ -140,7 +148,9 @@ def _schur_pattern(rows, position, bs, near, k):
             total[j + 1, i + 1] = total[j, i + 1] + total[j + 1, i] - total[j, i] + near[j, i]
     n = rows.shape[0]
     pointer = np.zeros(n + 1, dtype=np.int32)
-    cols = np.empty(n * (4 * k + 1) ** 2, dtype=np.int32)
+    box = 4 * k + 1
+    cols = np.empty(n * box**2, dtype=np.int32)
+    in_box = np.empty(n * box**2, dtype=np.int64)
     count = 0
     for r in range(n):
         f, component = rows[r] // bs, rows[r] % bs
@@ -153,24 +163,53 @@ def _schur_pattern(rows, position, bs, near, k):
                 i0, i1 = max(max(fi, gi) - k, 0), min(min(fi, gi) + k, nfx - 1) + 1
                 if total[j1, i1] - total[j0, i1] - total[j1, i0] + total[j0, i0] > 0:
                     cols[count] = position[bs * (gi + nfx * gj) + component]
+                    in_box[count] = box * (gj - fj + 2 * k) + (gi - fi + 2 * k)
                     count += 1
         pointer[r + 1] = count
-    return pointer, cols[:count].copy()
+    return pointer, cols[:count].copy(), in_box[:count].copy()
 
 
 @numba.njit(cache=True)
-def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, diagonal, out):
+def _fill_squares(p01, v01, place01, squares):
+    """The rows of ``A01`` on their functions' stencils (``squares[m]``, in the places of
+    :func:`_row_blocks`; zero where a row has no entry)."""
+    for m in range(p01.shape[0] - 1):
+        for q in range(p01[m], p01[m + 1]):
+            squares[m, place01[q]] = v01[q]
+
+
+@numba.njit(cache=True, inline="always")
+def _subtract_pair(acc, corner, s0, s1, square0, square1, side, box):
+    """``acc -= s0 square0 + s1 square1`` on the square at ``corner`` of the box, entry by entry
+    (the first dof's product first)."""
+    for dy in range(side):
+        row = corner + box * dy
+        for dx in range(side):
+            partial = acc[row + dx] - s0 * square0[side * dy + dx]
+            acc[row + dx] = partial - s1 * square1[side * dy + dx]
+
+
+@numba.njit(cache=True)
+def _schur_values(pointer, in_box, reach, p11, v11, place11, p10, c10, v10, place10, squares, diagonal, out):
     """``out`` = the values of ``A11 - A10 diag(A00)^-1 A01`` on its pattern (:func:`_schur_pattern`).
 
-    The velocity dofs come in pairs (the two components of a function, both in the pattern or
-    neither): a row of ``A10`` holds both of a pair, side by side, and their rows of ``A01`` have
-    the same columns, so a pair is taken in one pass over those columns (each sum is added to in
-    the same order as one dof at a time)."""
-    n = pointer.shape[0] - 1
-    acc = np.zeros(n)
-    for i in range(n):
+    A row of function ``f`` is summed on a dense *box*, the functions within ``2 reach`` of ``f``
+    (side ``4 reach + 1``, row by row): ``A11``'s entries, then for each velocity function of the
+    row of ``A10`` in turn (its two dofs, side by side) its rows of ``A01`` whole, on their stencils
+    (:func:`_fill_squares`: side ``2 reach + 1``) within the box. ``place11``, ``place10``: the
+    entries' places in ``f``'s stencil (:func:`_row_blocks`); ``in_box``: the pattern's places in
+    the box. Each sum is added to in the same order as entry by entry over the sparse rows; the
+    stencils' zeros add nothing (the sums start at +0 and never become -0, so subtracting a zero
+    product leaves them as they are)."""
+    side, box = 2 * reach + 1, 4 * reach + 1
+    corner = np.empty(side * side, dtype=np.int64)  # by place in f's stencil: that function's stencil in the box
+    for place in range(side * side):
+        corner[place] = box * (place // side) + place % side
+    acc = np.empty(box * box)
+    for i in range(pointer.shape[0] - 1):
+        acc[:] = 0.0
         for k in range(p11[i], p11[i + 1]):
-            acc[c11[k]] += v11[k]
+            acc[corner[place11[k]] + (box + 1) * reach] += v11[k]
         for k in range(p10[i], p10[i + 1], 2):
             a0, a1 = v10[k], v10[k + 1]
             if a0 == 0.0 and a1 == 0.0:  # a pair or a row not free this solve: adds nothing
@@ -178,16 +217,12 @@ def _schur_values(pointer, cols, p11, c11, v11, p10, c10, v10, p01, c01, v01, di
             m = c10[k]
             s0 = a0 / diagonal[m]
             s1 = a1 / diagonal[m + 1]
-            first, last = p01[m], p01[m + 1]
-            second = last - first  # from the first dof's row to the second's
-            for q in range(first, last):
-                j = np.uintp(c01[q])  # an index known >= 0: no wrap-around test
-                partial = acc[j] - s0 * v01[q]
-                acc[j] = partial - s1 * v01[q + second]
+            if reach == 2:  # the quadratic B-spline's, as constants: the loops unroll
+                _subtract_pair(acc, corner[place10[k]], s0, s1, squares[m], squares[m + 1], 5, 9)
+            else:
+                _subtract_pair(acc, corner[place10[k]], s0, s1, squares[m], squares[m + 1], side, box)
         for k in range(pointer[i], pointer[i + 1]):
-            j = np.uintp(cols[k])
-            out[k] = acc[j]
-            acc[j] = 0.0
+            out[k] = acc[in_box[k]]
 
 
 @numba.njit(cache=True)
@@ -237,12 +272,14 @@ class FreeBlocks:
         self.order = np.concatenate([rows0, rows1])
         self._sizes = (len(rows0), len(rows1))
         rows = (rows0, rows1)
-        self._blocks = {}
+        self._blocks, self._places = {}, {}  # the places of the blocks the Schur complement reads
         for i in range(2):
             cut = _row_blocks(lay.indptr, lay.stencil, space.basis.nfx, space.basis.nfy, space.bs, rows[i], field,
                               position)
-            for j, (pointer, cols, source) in enumerate(cut):
+            for j, (pointer, cols, source, place) in enumerate(cut):
                 self._blocks[i, j] = (pointer, cols, source, np.empty(len(cols)))
+                if i + j > 0:
+                    self._places[i, j] = place
         self._diagonal = _diagonal_positions(self._blocks[0, 0][0], self._blocks[0, 0][1])
         if np.any(self._diagonal < 0):
             raise ValueError("a velocity dof has no diagonal entry")
@@ -250,9 +287,11 @@ class FreeBlocks:
         self._mats = [[PETSc.Mat().createAIJWithArrays((len(rows[i]), len(rows[j])), self._block_arrays(i, j),
                                                        comm=PETSc.COMM_SELF) for j in range(2)] for i in range(2)]
         self.nest = PETSc.Mat().createNest(self._mats, comm=PETSc.COMM_SELF)
-        k = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2  # the stencil's reach
-        self._schur_pointer, self._schur_cols = _schur_pattern(rows1, position, space.bs, near, k)
+        self._reach = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2  # the stencil's reach
+        self._schur_pointer, self._schur_cols, self._in_box = _schur_pattern(rows1, position, space.bs, near,
+                                                                             self._reach)
         self._schur_values = np.empty(len(self._schur_cols))
+        self._squares = np.zeros((len(rows0), lay.stencil.shape[1]))
         self._fill_schur()
         n1 = len(rows1)
         self.schur = PETSc.Mat().createAIJWithArrays(
@@ -290,8 +329,11 @@ class FreeBlocks:
         self.schur.stateIncrease()
 
     def _fill_schur(self):
-        _schur_values(self._schur_pointer, self._schur_cols, *self._block_arrays(1, 1), *self._block_arrays(1, 0),
-                      *self._block_arrays(0, 1), self._blocks[0, 0][3][self._diagonal], self._schur_values)
+        p01, _, _, v01 = self._blocks[0, 1]
+        _fill_squares(p01, v01, self._places[0, 1], self._squares)
+        (p11, _, _, v11), (p10, c10, _, v10) = self._blocks[1, 1], self._blocks[1, 0]
+        _schur_values(self._schur_pointer, self._in_box, self._reach, p11, v11, self._places[1, 1], p10, c10, v10,
+                      self._places[1, 0], self._squares, self._blocks[0, 0][3][self._diagonal], self._schur_values)
 
     def restrict(self, vector: np.ndarray, out: np.ndarray):
         """A vector by global dof into ``out`` in the rows of ``nest``, zero on the dofs not free."""
