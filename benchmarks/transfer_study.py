@@ -1,6 +1,6 @@
 """The particle-grid transfers measured (issue 11): the seed's FLIP/PIC against the default affine-FLIP.
 
-Four cases, each run with both transfers (``fempm.cases.vortices.VARIANTS``):
+The cases, the first four run with both transfers (``fempm.cases.vortices.VARIANTS``):
 
 * the dam break (40 x 40, 2 x 2 particles per cell, to t = 0.27 s): the front's RMS relative
   difference from interFoam 160 x 160 over 0.3 < T <= 3 at several time steps, and 80 x 80;
@@ -18,7 +18,7 @@ The results go to ``docs/verification/transfers.json`` and, through the template
 (the page's other sections, written by ``report.py``, are kept as they are; each case's entry says
 which command made it, so that cases may be rerun one at a time)::
 
-    python benchmarks/transfer_study.py                 # the short studies (about 10 minutes)
+    python benchmarks/transfer_study.py                 # the short studies (about 15 minutes)
     python benchmarks/transfer_study.py --full          # t = 3 Gresho, 10 s column, all steps (hours)
     python benchmarks/transfer_study.py --case taylor_green gresho
 """
