@@ -57,7 +57,9 @@ def test_column_stays_at_rest_with_affine_flip():
 @pytest.mark.full
 @pytest.mark.xfail(strict=True, reason="the loss does not fall under refinement at U dt/h = 0.4: 4.67e-3 / 5.13e-3 / "
                    "3.25e-2 per unit time at 32² / 64² / 128² (at 128² the energy drops after t ~ 0.1 while the "
-                   "pressure's minimum moves from -852 to -227 Pa; no wall releases; without PSPG 1.44e-3 at 128²)")
+                   "pressure's minimum moves from -852 to -227 Pa; no wall releases; without PSPG 1.44e-3 at 128²). The loss "
+                   "follows the particles' disorder in cells, which a finer grid reaches sooner (docs/verification.md, "
+                   "'How it grows')")
 def test_taylor_green_at_64_cells():
     """nu = 1e-6, 64², U dt/h = 0.4, 0.2, 0.1: below 1 % per unit time, not growing as dt falls, and
     below the 32² loss."""
