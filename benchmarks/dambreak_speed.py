@@ -22,7 +22,7 @@ SEED_SECONDS = 324.0
 
 def timed_run(end_time: float, basis: str, dt: float) -> dict:
     """Run the dam break without output files; the solver's phase timings and the total."""
-    scene = dambreak.scene({"solver.basis": basis, "time.end": end_time, **dambreak.fixed_step(dt)}, files=False)
+    scene = dambreak.scene({"solver.basis": basis, "time.end": end_time, **dambreak.seed_setup(dt)}, files=False)
     solver = build_solver(scene, MPI.COMM_WORLD)
     start = time.perf_counter()
     for _ in range(scene.time.steps):

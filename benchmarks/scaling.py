@@ -48,7 +48,7 @@ def measure(particles: float, linear: str, steps: int) -> dict:
     comm = MPI.COMM_WORLD
     n = cells_for(particles)
     scene = load_scene(SCENE)
-    scene = replace(dambreak.at_fixed_step(scene), domain=replace(scene.domain, cells=(n, n)),  # the table's step
+    scene = replace(dambreak.at_seed_setup(scene), domain=replace(scene.domain, cells=(n, n)),  # the table's step
                     output=Output(folder="unused"), solver=replace(scene.solver, linear=linear))
     start = time.perf_counter()
     solver = build_solver(scene, comm)

@@ -93,7 +93,7 @@ def say(message: str):
 def solver(scheme: str, **options):
     """The seed's dam break: ``"implicit"`` at ``dt``, or ``"explicit"`` with ExplicitScheme ``options``."""
     if scheme == "implicit":
-        return build_solver(dambreak.scene(dambreak.fixed_step(options["dt"]), files=False), MPI.COMM_WORLD)
+        return build_solver(dambreak.scene(dambreak.seed_setup(options["dt"]), files=False), MPI.COMM_WORLD)
     return dambreak.explicit_solver(dambreak.scene(files=False), MPI.COMM_WORLD, **options)
 
 

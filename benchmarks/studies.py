@@ -129,7 +129,7 @@ def dam_break(full: bool = False) -> list[Measurement]:
 
     def one(cells=40, ppc=2, dt=1e-3, basis="bspline"):
         with tempfile.TemporaryDirectory() as folder:
-            scene = dambreak.scene({"time.end": 0.28, **dambreak.fixed_step(dt), "domain.cells": [cells, cells],
+            scene = dambreak.scene({"time.end": 0.28, **dambreak.seed_setup(dt), "domain.cells": [cells, cells],
                                     "bodies.0.particles_per_cell": ppc**2, "solver.basis": basis,
                                     "output.folder": folder, "output.progress": False}, files=False)
             s = simulation.run_scene(scene, MPI.COMM_WORLD, overwrite=True)

@@ -47,7 +47,7 @@ MARKER = "## Transfers: FLIP/PIC against affine-FLIP"
 
 def dambreak_front(variant: str, cells: int = 40, dt: float = 1e-3, end: float = 0.27) -> dict:
     """The dam break's front difference from interFoam 160^2 (0.3 < T <= 3) with a transfer."""
-    changes = {"time.end": end, **dambreak.fixed_step(dt), "domain.cells": [cells, cells], "output.progress": False,
+    changes = {"time.end": end, **dambreak.seed_setup(dt), "domain.cells": [cells, cells], "output.progress": False,
                **{f"solver.{k}": v for k, v in vortices.VARIANTS[variant].items()}}
     solver = build_solver(dambreak.scene(changes, files=False))
     history = [(0.0, diagnostics.front_position(solver.particles))]

@@ -90,14 +90,17 @@ except ValueError:
 # %% [markdown]
 # ## The grid, the water and the explicit solver
 #
-# `dambreak.explicit_solver` seeds the same grid and particles as the implicit demo
-# (`simulation.build_material`) and builds the explicit solver with the scene's fluid and walls;
+# `dambreak.explicit_solver` seeds the same grid as the implicit demo, with the seed's 2 x 2
+# particles per cell (`--ppc N` for N x N; the shipped scene has 4 x 4), through
+# `simulation.build_material`, and builds the explicit solver with the scene's fluid and walls;
 # its step follows from the CFL condition of the sound speed and the column's free-fall speed
 # $\sqrt{2gH}$, the largest the flow reaches.
 
 # %%
 try:
-    scene = dambreak.scene(dambreak.changes(args), files=args.files, source=SCENE, names=dambreak.flag_names(parser))
+    seed_particles = {"bodies.0.particles_per_cell": dambreak.SEED_PER_CELL}  # the seed's 2 x 2 unless --ppc
+    scene = dambreak.scene({**seed_particles, **dambreak.changes(args)}, files=args.files, source=SCENE,
+                           names=dambreak.flag_names(parser))
     dambreak.prepare_folder(scene, args.overwrite, comm)
     solver = dambreak.explicit_solver(scene, comm, dt=args.dt, cfl=args.cfl, bulk_modulus=args.bulk_modulus,
                                       sound_speed=sound_speed, pic_blend=scene.solver.pic_blend,

@@ -21,13 +21,13 @@ import pytest
 from mpi4py import MPI
 
 from fempm.scene import estimate, scene_from_text
-from helpers import seed_step
+from helpers import seed_setup
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns its own processes")
 
 ROOT = Path(__file__).resolve().parents[1]
 FEMPM = str(Path(sys.executable).parent / "fempm")
-DAMBREAK = seed_step((ROOT / "scenes" / "dambreak.toml").read_text())
+DAMBREAK = seed_setup((ROOT / "scenes" / "dambreak.toml").read_text())
 FORMS = (ROOT / "forms" / "incompressible.py").read_text()
 
 

@@ -36,7 +36,9 @@ END = 0.06
 
 def _scene(folder, end=END, courant=None):
     scene = load_scene(SCENE, folder=folder, end_time=end)
-    scene = replace(scene, time=replace(scene.time, courant=courant, dt=5e-3)) if courant else dambreak.at_fixed_step(scene)
+    scene = dambreak.at_seed_setup(scene)  # the seed's particles (and step, unless adaptive)
+    if courant:
+        scene = replace(scene, time=replace(scene.time, courant=courant, dt=5e-3))
     return replace(scene, output=replace(scene.output, particles_interval=0.01, grid_interval=0.02,
                                                     snapshots=(min(end, 0.03),), checkpoint_interval=0.01,
                                                     progress=False))

@@ -19,10 +19,10 @@ from fempm.eulerian import EulerianSolver
 from fempm.options import Physics, Scheme
 from fempm.scene import scene_from_text
 from fempm.verification import advance, sample
-from helpers import resting_water, seed_step
+from helpers import resting_water, seed_setup
 
 RHO, G = 1000.0, 9.81
-DAMBREAK = seed_step((Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml").read_text())
+DAMBREAK = seed_setup((Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml").read_text())
 
 
 @pytest.mark.mpi

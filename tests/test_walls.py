@@ -93,7 +93,7 @@ def _dambreak(end: float):
     from fempm.cases import dambreak
     from fempm.simulation import build_solver
 
-    return build_solver(dambreak.scene({**dambreak.fixed_step(), "time.end": end}, files=False))
+    return build_solver(dambreak.scene({**dambreak.seed_setup(), "time.end": end}, files=False))
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="compares particles by id on one rank")

@@ -32,9 +32,9 @@ from fempm.options import Physics, Scheme
 from fempm.scene import Scene, parse_scene
 from fempm.simulation import build_material, check_folder
 
-__all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "TANK", "WIDTH", "add_flags", "changes",
-           "at_fixed_step", "compare_front", "explicit_solver", "fixed_step", "flag_names", "front_measures", "petsc_options", "plot_front",
-           "prepare_folder", "read_front", "scene", "stop"]
+__all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "SEED_PER_CELL", "TANK", "WIDTH", "add_flags", "changes",
+           "at_seed_setup", "compare_front", "explicit_solver", "flag_names", "front_measures", "petsc_options", "plot_front",
+           "prepare_folder", "read_front", "scene", "seed_setup", "stop"]
 
 #: the repository's scene (``scenes/`` is not installed with the package: a demo passes its own path)
 SCENE = Path(__file__).resolve().parents[2] / "scenes" / "dambreak.toml"
@@ -43,6 +43,7 @@ HEIGHT = 2 * WIDTH  #: the column's height, m
 TANK = 4 * WIDTH  #: the square tank's side, m
 GRAVITY = references.GRAVITY  #: m/s^2
 SEED_DT = Scheme.dt  #: the seed's fixed step, 1 ms (the shipped scene's step adapts to the flow)
+SEED_PER_CELL = 4  #: the seed's particles per cell, 2 x 2 (the shipped scene: 4 x 4; README, departures)
 FREE_FALL = sqrt(2 * GRAVITY * HEIGHT)  #: the column's free-fall speed, the flow's largest, m/s
 AUTO_SOUND_SPEED = 10 * FREE_FALL  #: the weakly compressible practice's artificial sound speed, m/s
 #: the outputs ``files=False`` leaves out: ParaView series, pictures, checkpoints
@@ -90,14 +91,18 @@ def scene(changes: Mapping[str, object] | None = None, files: bool = True, sourc
     return parse_scene(data, source="command line" if names else source, forms=own, names=names)
 
 
-def fixed_step(dt: float = SEED_DT) -> dict[str, object]:
-    """The :func:`scene` changes of a fixed step ``dt`` (the scene's own adapts to the flow)."""
-    return {"time.courant": None, "time.dt": dt}
+def seed_setup(dt: float = SEED_DT) -> dict[str, object]:
+    """The :func:`scene` changes of the seed's set-up: a fixed step ``dt`` (the seed's 1 ms) and
+    :data:`SEED_PER_CELL` particles per cell (the scene's own step adapts to the flow, over 4 x 4
+    particles per cell)."""
+    return {"time.courant": None, "time.dt": dt, "bodies.0.particles_per_cell": SEED_PER_CELL}
 
 
-def at_fixed_step(scene_: Scene, dt: float = SEED_DT) -> Scene:
-    """``scene_`` with a fixed step ``dt`` instead of its own (:func:`fixed_step` for a scene object)."""
-    return replace(scene_, time=replace(scene_.time, courant=None, dt=dt))
+def at_seed_setup(scene_: Scene, dt: float = SEED_DT) -> Scene:
+    """``scene_`` in the seed's set-up (:func:`seed_setup` for a scene object): a fixed step ``dt``
+    and :data:`SEED_PER_CELL` particles per cell in every body."""
+    bodies = tuple(replace(b, particles_per_cell=SEED_PER_CELL) for b in scene_.bodies)
+    return replace(scene_, time=replace(scene_.time, courant=None, dt=dt), bodies=bodies)
 
 
 def flag_names(parser: argparse.ArgumentParser) -> dict[str, str]:
@@ -145,7 +150,7 @@ def add_flags(parser: argparse.ArgumentParser):
     flag("--end-time", dest="time.end", type=float, metavar="T", help="simulated time, s (scene: 1)")
     flag("--cells", dest="domain.cells", type=_cells, metavar="N", help="N x N cells (scene: 40)")
     flag("--ppc", dest="bodies.0.particles_per_cell", type=lambda n: int(n) ** 2, metavar="N",
-         help="N x N particles per cell (scene: 2)")
+         help="N x N particles per cell (scene: 4; the seed: 2)")
     flag("--basis", dest="solver.basis", choices=("bspline", "q1"), help="grid basis (scene: bspline)")
     flag("--walls", choices=("slip", "no-slip"), help="every wall (scene: slip)")
     flag("--viscosity", dest="fluid.viscosity", type=float, metavar="MU", help="Pa s (scene: 1e-3)")

@@ -62,7 +62,7 @@ FIELDS = ("x", "velocity", "acceleration", "pressure")
 def dam_break(dt: float = SEED_DT, viscosity: float = 1.0e-3):
     """The seed's dam break (:func:`fempm.cases.dambreak.scene`) at another step or viscosity."""
     def build(comm):
-        return build_solver(dambreak.scene({**dambreak.fixed_step(dt), "fluid.viscosity": viscosity}, files=False), comm)
+        return build_solver(dambreak.scene({**dambreak.seed_setup(dt), "fluid.viscosity": viscosity}, files=False), comm)
     return build
 
 
@@ -97,7 +97,7 @@ CORNER_SPEED = 2.0
 def corner(comm):
     """A square of water (10 x 10 cells) thrown at the lower-right corner along a tilted gravity."""
     return build_solver(dambreak.scene({
-        **dambreak.fixed_step(), "gravity": list(CORNER_GRAVITY), "bodies.0.lower": [0.2, 0.25], "bodies.0.upper": [0.2 + 10 * h, 0.25 + 10 * h],
+        **dambreak.seed_setup(), "gravity": list(CORNER_GRAVITY), "bodies.0.lower": [0.2, 0.25], "bodies.0.upper": [0.2 + 10 * h, 0.25 + 10 * h],
         "bodies.0.velocity": [CORNER_SPEED / sqrt(2), -CORNER_SPEED / sqrt(2)], "output.progress": False,
     }, files=False), comm)
 
