@@ -64,27 +64,28 @@ def run_dambreak(folder, changes: dict, files: bool = False, comm=MPI.COMM_WORLD
 
 @pytest.fixture(scope="module")
 def dambreak_fronts(tmp_path_factory):
-    """Fronts to T = 3.2 of the seed's dam break and of a run with a 2x finer grid and 4x the particles."""
+    """Fronts to T = 3.2 of the shipped dam break and of a run with a 2x finer grid and 4x the particles."""
     return {name: run_dambreak(tmp_path_factory.mktemp(name), {"time.end": 0.28, "domain.cells": [cells, cells]})
             for name, cells in (("seed", 40), ("fine", 80))}
 
 
 def test_dambreak_front_is_converged_against_a_finer_run(dambreak_fronts):
-    """The seed's resolution against 80 x 80 cells and 3200 particles, same front measure (the seed's
-    own distance from interFoam and the experiment: ``demos/dambreak.py``, tests/test_demos.py)."""
+    """The shipped resolution (40², 4 x 4 particles per cell) against 80 x 80 cells and 12800 particles,
+    same front measure (its own distance from interFoam and the experiment: ``demos/dambreak.py``,
+    tests/test_demos.py)."""
     (_, coarse), (_, fine) = dambreak_fronts["seed"], dambreak_fronts["fine"]
     numerical = references.front_difference(coarse, fine)
     fine_measures = dambreak.front_measures(fine)
     print(f"front RMS difference, seed resolution vs 2x finer: {100 * numerical:.2f} %; finer run vs interFoam "
           f"160: {100 * fine_measures['front_difference_vs_interfoam_160']:.2f} %")
-    assert numerical <= 0.040  # measured 0.0379
-    assert fine_measures["front_difference_vs_interfoam_160"] <= 0.019  # measured 0.0180: the finer run is closer
+    assert numerical <= 0.012  # measured 0.0110 (the seed's 2 x 2 per cell: 0.0379)
+    assert fine_measures["front_difference_vs_interfoam_160"] <= 0.0045  # measured 0.0041 (2 x 2: 0.0180): closer
 
 
 def front_error(dt: float, initial_acceleration: str) -> float:
     """The seed's dam break to T = 3 at step ``dt`` with Newmark's ``a_0`` solved or given (zero):
     its front's difference from interFoam 160²."""
-    solver = simulation.build_solver(dambreak.scene({"time.end": 0.28, **dambreak.fixed_step(dt)}, files=False))
+    solver = simulation.build_solver(dambreak.scene({"time.end": 0.28, **dambreak.seed_setup(dt)}, files=False))
     solver.scheme = replace(solver.scheme, initial_acceleration=initial_acceleration)
     history = [(0.0, diagnostics.front_position(solver.particles))]
     while solver.time < 0.28 - 1e-9:
@@ -114,7 +115,7 @@ def test_an_unknown_initial_acceleration_is_refused():
 def test_without_pspg_the_run_stops_with_a_diagnosis(tmp_path):
     """method.md Fig. 3: without PSPG the seed's run (its fixed step, 1 ms) diverged at 0.175 s (FLIP/PIC
     here: 0.171 s)."""
-    summary, front = run_dambreak(tmp_path, {**dambreak.fixed_step(), "time.end": 0.3, "solver.pspg": False, "output.particles_interval": 0.05,
+    summary, front = run_dambreak(tmp_path, {**dambreak.seed_setup(), "time.end": 0.3, "solver.pspg": False, "output.particles_interval": 0.05,
                                              "output.grid_interval": 0.05}, files=True)
     assert summary["status"] == "stopped"
     assert "pressure" in summary["cause"] and f"t = {summary['time'] + 0.001:.3f} s" in summary["cause"]

@@ -18,10 +18,10 @@ from mpi4py import MPI
 import fempm
 from fempm import cli
 from fempm.scene import load_scene, parse_scene, scene_from_text, to_toml
-from helpers import seed_step
+from helpers import seed_setup
 
 SCENES = Path(__file__).resolve().parents[1] / "scenes"
-DAMBREAK = seed_step((SCENES / "dambreak.toml").read_text())
+DAMBREAK = seed_setup((SCENES / "dambreak.toml").read_text())
 
 
 def _edit(old: str, new: str, text: str = DAMBREAK) -> str:
@@ -250,21 +250,21 @@ def test_shipped_scenes_read_back_unchanged_from_their_resolved_form():
         assert parse_scene(tomllib.loads(to_toml(scene)), path) == scene
 
 
-def test_dambreak_scene_is_the_seed_setup(comm):
-    """The shipped scene builds the demo's grid, particles and options exactly (the step adaptive:
-    Courant 0.5, at most 10 ms)."""
+def test_dambreak_scene_is_the_seeds_tank_and_water(comm):
+    """The shipped scene builds the demo's grid, particles and options exactly: the seed's tank and
+    water, 4 x 4 particles per cell (the seed: 2 x 2), the step adaptive (Courant 0.6, at most 10 ms)."""
     from fempm.simulation import build_solver
 
     scene = load_scene(SCENES / "dambreak.toml")
     solver = build_solver(scene, comm)
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (0.584, 0.584), (40, 40))
     seeded = fempm.Particles(grid)
-    seeded.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=2, density=1000.0)
-    assert solver.grid.h == grid.h and solver.particles.global_count() == 800
+    seeded.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=4, density=1000.0)
+    assert solver.grid.h == grid.h and solver.particles.global_count() == 3200
     assert np.array_equal(solver.particles.x, seeded.x) and np.array_equal(solver.particles.id, seeded.id)
     physics, scheme = solver.physics, solver.scheme
     assert (scheme.dt, scheme.courant, physics.viscosity, scheme.alpha, scheme.pspg, scheme.pic_blend, physics.gravity) == \
-        (1e-2, 0.5, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
+        (1e-2, 0.6, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
     assert (scheme.transfer, scheme.pic_rate) == ("affine-flip", 100.0)
     assert solver.particles["affine_velocity"].shape == solver.particles["affine_acceleration"].shape == (
         len(solver.particles), 2, 2)
