@@ -2,9 +2,11 @@
 
 Runs interFoam (``benchmarks/interfoam.py``: the same tank, column and walls, VOF with air)
 at 40² and 80² cells (and 160² with ``--full``), and fempm's ``scenes/dambreak.toml`` as it
-stands (an adaptive step, Courant 0.5, dt <= 10 ms), at Courant 0.7 and 1 and at the seed's fixed step of
-1 ms, and at finer settings (60² and 80², 2 x 2 particles per cell, Courant 1; 80² also at the
-scene's Courant 0.5), each to 2 s of flow, one after the other on one core. The accuracy measure is the surge
+stands (4 x 4 particles per cell, an adaptive step, Courant 0.6, dt <= 10 ms) and at Courant 0.7; with
+the seed's 2 x 2 particles per cell at Courant 0.5 (the scene until the particles were raised) and 1
+and at the seed's fixed step of 1 ms; 3 x 3 per cell at Courant 0.7; and at finer grids (60² and
+80², 2 x 2 per cell, Courant 1; 80² also at Courant 0.5), each to 2 s of flow, one after the other
+on one core. The accuracy measure is the surge
 front's RMS relative difference from interFoam's converged 160² front over 0.3 < T <= 3 (``fempm.references.front_difference``; the
 stored reference, or this invocation's own 160² run with ``--full``), i.e. over the first
 0.27 s. Prints a table (grid, steps, wall time, front difference) and each code's wall time
@@ -58,11 +60,13 @@ WARM_UP_TIME = 0.01                      # s of flow of the run before fempm's t
 HEAD_TO_HEAD = 5                         # pairs of interFoam 40² and the shipped scene, alternated, for the headline
 TARGETS = (0.025, 0.012)                 # front differences at which the wall times are compared
 FAST = {"courant": 1.0, "dt": 1e-2}      # an adaptive step: its Courant number and largest step
-BETWEEN = {"courant": 0.7, "dt": 1e-2}   # between the scene's Courant 0.5 and FAST
+BETWEEN = {"courant": 0.7, "dt": 1e-2}   # between the scene's Courant 0.6 and FAST
+HALF = {"courant": 0.5, "dt": 1e-2}      # the scene's step before its particles went from 2 x 2 to 4 x 4
 SEED_STEP = {"courant": None, "dt": 1e-3}  # the seed's fixed step (None leaves the scene's courant out)
 #: fempm's runs after the scene as it stands: (cells per side, particles per cell) or None for the
-#: scene's 40² and 2 x 2 per cell (60²: the column 15 x 30 cells), and the step (None: the scene's)
-FEMPM_RUNS = ((None, BETWEEN), (None, FAST), (None, SEED_STEP), ((60, 4), FAST), ((80, 4), FAST), ((80, 4), None))
+#: scene's 40² and 4 x 4 per cell (60²: the column 15 x 30 cells), and the step (None: the scene's)
+FEMPM_RUNS = ((None, BETWEEN), ((40, 4), HALF), ((40, 4), FAST), ((40, 4), SEED_STEP), ((40, 9), BETWEEN),
+              ((60, 4), FAST), ((80, 4), FAST), ((80, 4), HALF))
 STORED = (40, 80, 160)                   # grids of the stored interFoam fronts
 
 
@@ -222,7 +226,9 @@ def plot(rows: list[Row], path: Path, reference: str):
             best = _fastest_to_each_error(runs)  # the runs no other run beats in both time and error
             ax.plot([r.wall_s for r in best], [100 * r.error for r in best], "-", color=colour, lw=1)
             for i, r in enumerate(runs):
-                ax.annotate(f"{r.cells}²" + (f", {r.step}" if r.step else ""), (r.wall_s, 100 * r.error),
+                per_cell = f" {math.isqrt(r.particles_per_cell)}×{math.isqrt(r.particles_per_cell)}" \
+                    if r.particles_per_cell else ""
+                ax.annotate(f"{r.cells}²{per_cell}" + (f", {r.step}" if r.step else ""), (r.wall_s, 100 * r.error),
                             textcoords="offset points", xytext=(5, 4 if i % 2 else -10), fontsize=7)
     for e in TARGETS:
         ax.axhline(100 * e, color="grey", lw=0.6, ls=":")
