@@ -61,30 +61,30 @@ class SurfaceLevel:
         return float(np.mean(top) - self.grid.lower[1])
 
 
-def column(scheme: Scheme, comm=MPI.COMM_WORLD) -> ImplicitSolver:
+def column(scheme: Scheme, per_cell: int = 2, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     """The dam-break column at rest between walls as far apart as it is wide."""
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (0.146, 0.584), (10, 40))
     water = fempm.Particles(grid)
-    water.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=2, density=RHO)
+    water.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=per_cell, density=RHO)
     return ImplicitSolver(fempm.BSpline2(grid), water, scheme=scheme)
 
 
-def slosh(scheme: Scheme, comm=MPI.COMM_WORLD) -> ImplicitSolver:
+def slosh(scheme: Scheme, per_cell: int = 2, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     """Water 0.15 m deep in a 0.4 m wide tank, its surface tilted by +-2 cm."""
     width, depth, tilt = 0.4, 0.15, 0.02
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (width, 0.3), (20, 15))
     water = fempm.Particles(grid)
-    water.seed(fempm.Polygon(((0.0, 0.0), (width, 0.0), (width, depth - tilt), (0.0, depth + tilt))), per_cell=2,
-               density=RHO)
+    water.seed(fempm.Polygon(((0.0, 0.0), (width, 0.0), (width, depth - tilt), (0.0, depth + tilt))),
+               per_cell=per_cell, density=RHO)
     return ImplicitSolver(fempm.BSpline2(grid), water, scheme=scheme)
 
 
 CASES = {"column": column, "slosh": slosh}
 
 
-def run_case(name: str, scheme: Scheme, end_time: float, every: float = 0.01) -> dict:
-    """Run a case; its volume history, drift and final speeds."""
-    solver = CASES[name](scheme)
+def run_case(name: str, scheme: Scheme, end_time: float, every: float = 0.01, per_cell: int = 2) -> dict:
+    """Run a case (``per_cell`` x ``per_cell`` particles per cell); its volume history, drift and final speeds."""
+    solver = CASES[name](scheme, per_cell)
     level = SurfaceLevel(solver.basis)
     width = solver.grid.upper[0] - solver.grid.lower[0]
     k = max(int(round(every / scheme.dt)), 1)
@@ -115,14 +115,16 @@ def main(argv=None) -> int:
     parser.add_argument("--surface-aware", action="store_true", help="Scheme.surface_aware (fempm.density)")
     parser.add_argument("--column-time", type=float, default=10.0)
     parser.add_argument("--slosh-time", type=float, default=5.0)
+    parser.add_argument("--per-cell", type=int, default=2, help="N x N particles per cell (default 2)")
     parser.add_argument("--out", help="write the results as JSON here")
     args = parser.parse_args(argv)
     scheme = Scheme(alpha=args.alpha, surface_aware=args.surface_aware)
-    results = [run_case(name, scheme, args.column_time if name == "column" else args.slosh_time)
-               for name in args.cases]
+    results = [run_case(name, scheme, args.column_time if name == "column" else args.slosh_time,
+                        per_cell=args.per_cell) for name in args.cases]
     if MPI.COMM_WORLD.rank == 0:
         for r in results:
-            print(f"{r['case']:7s} alpha {args.alpha:g}{' surface-aware' if args.surface_aware else ''}: {r['status']}, t = {r['time']:.2f} s, volume change "
+            print(f"{r['case']:7s} alpha {args.alpha:g}{' surface-aware' if args.surface_aware else ''}, "
+                  f"{args.per_cell} x {args.per_cell} per cell: {r['status']}, t = {r['time']:.2f} s, volume change "
                   f"{r['change']:+.3%}, drift {r['drift_per_s']:+.3%}/s, max speed {r['max_speed_end']:.2e} m/s, "
                   f"tilt {1000 * r['tilt_first_s']:.1f} -> {1000 * r['tilt_last_s']:.1f} mm")
         if args.out:

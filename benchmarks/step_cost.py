@@ -1,7 +1,7 @@
 """The cost of one implicit step by phase, this checkout against another (main), side by side.
 
 Runs the seed's dam break (``--cells N``: N x N cells, 2 x 2 particles per cell in the column,
-N^2 / 2 particles) for ``--warm`` steps, then times ``--steps`` steps, phase by phase
+N^2 / 2 particles, or n x n) for ``--warm`` steps, then times ``--steps`` steps, phase by phase
 (``project`` = P2G, ``assemble``, ``solve``, ``update`` = G2P, ``relocate``, and the step's
 rest, Python between the phases), and splits the solve by PETSc's event log (free-dof and
 field-split extraction, symbolic and numeric LU, the Krylov iteration). Each version runs in its
@@ -11,8 +11,9 @@ machine's load than the wall time, which is given too) and the ratio this / othe
 
     python benchmarks/step_cost.py --case 40:100:300 --case 236:60:10 --against ../main --page docs/speed-step.md
 
-A case is ``CELLS:WARM:STEPS`` (236 cells: 27,848 particles, the size of Tesserae.jl's dam
-break). ``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from
+A case is ``CELLS:WARM:STEPS`` or ``CELLS:WARM:STEPS:N`` with N x N particles per cell (default 2,
+the seed's; 236 cells at 2 x 2: 27,848 particles, the size of Tesserae.jl's dam break; 40:100:300:4
+is the shipped scene's 3200). ``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from
 DIR); ``--page`` writes the tables into a Markdown page (``benchmarks/templates/speed-step.md``).
 """
 
@@ -40,7 +41,7 @@ EVENTS = {
 }
 
 
-def worker(cells: int, warm: int, steps: int, petsc: dict) -> dict:
+def worker(cells: int, warm: int, steps: int, petsc: dict, per_cell: int = 2) -> dict:
     """Time ``steps`` steps after ``warm``; phase and event CPU milliseconds per step."""
     from mpi4py import MPI
 
@@ -53,9 +54,9 @@ def worker(cells: int, warm: int, steps: int, petsc: dict) -> dict:
     from fempm.cases import dambreak
     from fempm.simulation import build_solver
 
-    # the seed's 2 x 2 particles per cell (issue 12's sizes: 800 particles at 40²), written out so that a
-    # checkout from before the scene's 4 x 4 runs the same case
-    changes = {"time.end": 10.0, "domain.cells": [cells, cells], "bodies.0.particles_per_cell": 4}
+    # per_cell x per_cell particles per cell (the seed's 2 x 2: issue 12's sizes, 800 particles at 40²),
+    # written out so that a checkout from before the scene's 4 x 4 runs the same case
+    changes = {"time.end": 10.0, "domain.cells": [cells, cells], "bodies.0.particles_per_cell": per_cell**2}
     if petsc:
         changes["solver.petsc"] = petsc
     scene = dambreak.scene(changes, files=False)
@@ -82,12 +83,12 @@ def worker(cells: int, warm: int, steps: int, petsc: dict) -> dict:
     return out
 
 
-def run(python: str, root: Path, case: tuple[int, int, int], petsc: dict) -> dict:
+def run(python: str, root: Path, case: tuple[int, ...], petsc: dict) -> dict:
     """One worker process with ``python`` importing fempm from ``root``."""
     env = {**os.environ, "PYTHONPATH": str(root), "OMP_NUM_THREADS": "1"}
-    cells, warm, steps = case
+    cells, warm, steps, per_cell = (*case, 2)[:4]
     command = [python, str(Path(__file__).resolve()), "--worker", "--cells", str(cells), "--warm",
-               str(warm), "--steps", str(steps), "--petsc", json.dumps(petsc)]
+               str(warm), "--steps", str(steps), "--per-cell", str(per_cell), "--petsc", json.dumps(petsc)]
     done = subprocess.run(command, env=env, cwd=root, capture_output=True, text=True, check=True)
     return json.loads(done.stdout.strip().splitlines()[-1])
 
@@ -98,9 +99,9 @@ def median(values):
     return 0.5 * (values[(n - 1) // 2] + values[n // 2])
 
 
-def compare(case: tuple[int, int, int], versions: dict, rounds: int) -> tuple[str, str]:
+def compare(case: tuple[int, ...], versions: dict, rounds: int) -> tuple[str, str]:
     """Run the versions alternately; a heading line and the Markdown table of medians and ratios."""
-    cells, warm, steps = case
+    cells, warm, steps, per_cell = (*case, 2)[:4]
     load_start = os.getloadavg()
     results = {name: [] for name in versions}
     for _ in range(rounds):
@@ -110,7 +111,8 @@ def compare(case: tuple[int, int, int], versions: dict, rounds: int) -> tuple[st
     keys = ["step cpu", "step wall", *PHASES, "rest", *EVENTS]
     table = {name: {k: median([r[k] for r in rs]) for k in keys} for name, rs in results.items()}
     first = results["this"][0]
-    heading = (f"{cells}² cells, {first['particles']} particles ({first['free dofs']} free dofs at the last step), "
+    heading = (f"{cells}² cells, {per_cell} × {per_cell} per cell: {first['particles']} particles "
+               f"({first['free dofs']} free dofs at the last step), "
                f"{steps} steps timed after {warm}, {rounds} alternating rounds; load average "
                f"{', '.join(f'{x:.2f}' for x in load_start)} at the start, "
                f"{', '.join(f'{x:.2f}' for x in load_end)} at the end; solves that kept the last one's "
@@ -130,7 +132,7 @@ def compare(case: tuple[int, int, int], versions: dict, rounds: int) -> tuple[st
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--case", action="append", type=lambda t: tuple(int(v) for v in t.split(":")),
-                        metavar="CELLS:WARM:STEPS", help="a case (repeatable; default 40:100:300)")
+                        metavar="CELLS:WARM:STEPS[:N]", help="a case (repeatable; default 40:100:300)")
     parser.add_argument("--rounds", type=int, default=3, help="runs of each version, alternating (default 3)")
     parser.add_argument("--against", type=Path, default=None, help="a checkout to compare with (its .venv)")
     parser.add_argument("--petsc", default="{}", help="PETSc options (JSON) for this checkout's runs")
@@ -139,9 +141,10 @@ def main():
     parser.add_argument("--cells", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--warm", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--steps", type=int, help=argparse.SUPPRESS)
+    parser.add_argument("--per-cell", type=int, default=2, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        print(json.dumps(worker(args.cells, args.warm, args.steps, json.loads(args.petsc))))
+        print(json.dumps(worker(args.cells, args.warm, args.steps, json.loads(args.petsc), args.per_cell)))
         return
     here = Path(__file__).resolve().parents[1]
     versions = {"this": (sys.executable, here, json.loads(args.petsc))}

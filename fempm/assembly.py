@@ -85,6 +85,36 @@ def _add_particle(K, comp, jet, w, phi_p, T, rows, Ae):
                 Ae[C, l, e] += f * T[g, e]
 
 
+@numba.njit(cache=True, fastmath=True)
+def _add_particle_first_order(K, perm, w, phi_p, T, Ae):
+    """:func:`_add_particle` for jets of value and first derivatives (three per component), every
+    entry of ``K`` taken: with the jet sums written out the loops vectorise whole, which the general
+    loop over the non-zero entries does not.
+
+    ``T[(C, a), D nl + m] = w sum_b K[(C, a), (D, b)] phi_p[b, m]``, then
+    ``Ae[C, l, :] += sum_a phi_p[a, l] T[(C, a), :]`` (``perm[C, a]``: kernel dof of jet ``a`` of ``C``).
+    """
+    bs = perm.shape[0]
+    nk = 3 * bs
+    nl = phi_p.shape[1]
+    width = T.shape[1]
+    for C in range(bs):
+        for a in range(3):
+            row = perm[C, a] * nk
+            r = 3 * C + a
+            for D in range(bs):
+                base = D * nl
+                k0, k1, k2 = w * K[row + perm[D, 0]], w * K[row + perm[D, 1]], w * K[row + perm[D, 2]]
+                for m in range(nl):
+                    T[r, base + m] = k0 * phi_p[0, m] + k1 * phi_p[1, m] + k2 * phi_p[2, m]
+    for C in range(bs):
+        r = 3 * C
+        for l in range(nl):
+            f0, f1, f2 = phi_p[0, l], phi_p[1, l], phi_p[2, l]
+            for e in range(width):
+                Ae[C, l, e] += f0 * T[r, e] + f1 * T[r + 1, e] + f2 * T[r + 2, e]
+
+
 @numba.njit(cache=True)
 def _dof_jets(perm):
     """Component and jet of every kernel dof (the inverse of ``perm[C, a]``)."""
@@ -127,7 +157,8 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     ``vector``: None, or ``(kernel, out, consts, perm)`` of a linear form whose kernel reads
     ``coeffs[p]`` whole (the residual whose Jacobian this is), added into ``out`` in the same pass
     as :func:`assemble_vector` would. The element matrix's rows are padded to a multiple of 4
-    entries: the vectorised inner loop of :func:`_add_particle` then has no scalar remainder."""
+    entries: the vectorised inner loops of :func:`_add_particle` (:func:`_add_particle_first_order` for
+    first-order jets) then have no scalar remainder."""
     n = cell.shape[0]
     bs, nq = perm.shape
     nl = phi.shape[2]
@@ -163,7 +194,10 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
             w[i] = coeffs[p, columns[i]]
         K[:] = 0.0
         kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
-        _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae)
+        if nq == 3:
+            _add_particle_first_order(K, perm, weight[p], phi[p], T, Ae)
+        else:
+            _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae)
     return 0
 
 
