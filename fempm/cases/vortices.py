@@ -189,10 +189,11 @@ def gresho_measures(solver) -> dict:
     return {"ke": kinetic_energy(p), "L": L, "profile": float(error)}
 
 
-def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline") -> dict:
-    """The Gresho vortex to ``end``: relative changes of kinetic energy (``ke``) and angular momentum
-    (``L``), the u_theta error at the end (``profile``) and at the start (``profile0``)."""
-    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis)
+def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2) -> dict:
+    """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell): relative changes of
+    kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end (``profile``) and
+    at the start (``profile0``)."""
+    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, per_cell=per_cell)
     start = gresho_measures(solver)
     run = advance(solver, end)
     final = gresho_measures(solver)
