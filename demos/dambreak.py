@@ -128,8 +128,8 @@ except FempmError as e:
 #
 # `build_solver` cuts the tank into square cells, seeds 4 x 4 particles in every cell of the
 # column (each carries the volume $h^2/16$ and the mass $\rho h^2/16$; with the seed's 2 x 2,
-# `--ppc 2`, the wall pressure ripples by 11-33 % as particles cross cells, by 2-4 % with these:
-# README, "Where fempm departs from method.md") and builds the implicit
+# `--ppc 2`, the wall pressure ripples several times more as particles cross cells:
+# `docs/wall-pressure.md`) and builds the implicit
 # solver on quadratic B-splines. The forms of `forms/incompressible.py` are compiled here,
 # once (DOLFINx's form compiler, a kernel per form evaluated at the particles); the time
 # loop only assembles and solves. The output folder follows `fempm run`'s rule: an earlier
