@@ -282,8 +282,8 @@ code is within the difference already: its cheapest run's time, an upper bound).
 
 ## The headline, repeated
 
-One run of each code varies by a few tenths of a second on this shared machine, as much as the
-difference between interFoam 40² and the shipped scene. After the runs above, the two alternate
+One run of each code varies by a few tenths of a second on this shared machine, so a single pair
+can mislead. After the runs above, interFoam 40² and the shipped scene alternate
 {pairs} times, each pair one right after the other (wall times; the scene's whole call):
 
 {head_to_head}
