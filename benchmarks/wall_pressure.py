@@ -44,14 +44,13 @@ SMOOTHING = 0.02  #: s, the moving mean the noise is measured against
 MAIN_PROBE = "right_y0.005"
 TOP_PROBE = "right_y0.0584"  #: the highest right-wall probe, where the run-up arrives last
 #: the runs of the page: key, label, scene changes
-SEED_PARTICLES = {"bodies.0.particles_per_cell": dambreak.SEED_PER_CELL}
 STUDY = [
     ("default", "default (4 × 4 per cell, adaptive step: Courant 0.6, dt ≤ 1e-2; α 0.1, affine-FLIP)", {}),
-    ("seed_ppc", "2 × 2 per cell (the seed's), Courant 0.5: the scene until now", {**SEED_PARTICLES, "time.courant": 0.5}),
-    ("ppc4", "2 × 2 per cell", SEED_PARTICLES),
+    ("seed_ppc", "2 × 2 per cell (the seed's), Courant 0.5: the scene until now", {**dambreak.SEED_PARTICLES, "time.courant": 0.5}),
+    ("ppc4", "2 × 2 per cell", dambreak.SEED_PARTICLES),
     ("ppc9", "3 × 3 per cell", {"bodies.0.particles_per_cell": 9}),
     ("ppc9_fast", "3 × 3 per cell, Courant 0.7", {"bodies.0.particles_per_cell": 9, "time.courant": 0.7}),
-    ("ppc4_fine", "2 × 2 per cell, 80² cells", {**SEED_PARTICLES, "domain.cells": [80, 80]}),
+    ("ppc4_fine", "2 × 2 per cell, 80² cells", {**dambreak.SEED_PARTICLES, "domain.cells": [80, 80]}),
     ("no_alpha", "no volume correction (α 0)", {"solver.volume_correction": 0.0}),
     ("fixed_step", "a fixed step, dt 1e-3", {"time.courant": None, "time.dt": 1e-3}),
     ("dt", "a fixed step, dt 5e-4", {"time.courant": None, "time.dt": 5e-4}),

@@ -98,8 +98,8 @@ except ValueError:
 
 # %%
 try:
-    seed_particles = {"bodies.0.particles_per_cell": dambreak.SEED_PER_CELL}  # the seed's 2 x 2 unless --ppc
-    scene = dambreak.scene({**seed_particles, **dambreak.changes(args)}, files=args.files, source=SCENE,
+    # the seed's 2 x 2 particles per cell unless --ppc
+    scene = dambreak.scene({**dambreak.SEED_PARTICLES, **dambreak.changes(args)}, files=args.files, source=SCENE,
                            names=dambreak.flag_names(parser))
     dambreak.prepare_folder(scene, args.overwrite, comm)
     solver = dambreak.explicit_solver(scene, comm, dt=args.dt, cfl=args.cfl, bulk_modulus=args.bulk_modulus,

@@ -103,7 +103,7 @@ def test_explicit_dam_break_with_artificial_sound_speed_follows_interfoam(comm, 
     """c0 = 10 sqrt(2 g H) to t = 0.26 s (T = 3.04): the front against interFoam 160² and the experiment;
     it runs ahead of the experiment, whose gate and wall friction a slip-wall model leaves out."""
     scene = dambreak.scene({"time.end": 0.26, "output.folder": str(shared_tmp), "output.progress": False,
-                            "bodies.0.particles_per_cell": dambreak.SEED_PER_CELL}, files=False)  # the seed's particles
+                            **dambreak.SEED_PARTICLES}, files=False)  # the seed's particles
     solver = dambreak.explicit_solver(scene, comm, sound_speed=dambreak.AUTO_SOUND_SPEED)
     summary = recording.run(solver, scene.time.end, simulation.recorder_for(scene, solver), progress=False)
     front = comm.bcast(dambreak.read_front(shared_tmp) if comm.rank == 0 else None, root=0)

@@ -32,7 +32,7 @@ from fempm.options import Physics, Scheme
 from fempm.scene import Scene, parse_scene
 from fempm.simulation import build_material, check_folder
 
-__all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "SEED_PER_CELL", "TANK", "WIDTH", "add_flags", "changes",
+__all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "SEED_PARTICLES", "SEED_PER_CELL", "TANK", "WIDTH", "add_flags", "changes",
            "at_seed_setup", "compare_front", "explicit_solver", "flag_names", "front_measures", "petsc_options", "plot_front",
            "prepare_folder", "read_front", "scene", "seed_setup", "stop"]
 
@@ -44,6 +44,7 @@ TANK = 4 * WIDTH  #: the square tank's side, m
 GRAVITY = references.GRAVITY  #: m/s^2
 SEED_DT = Scheme.dt  #: the seed's fixed step, 1 ms (the shipped scene's step adapts to the flow)
 SEED_PER_CELL = 4  #: the seed's particles per cell, 2 x 2 (the shipped scene: 4 x 4; README, departures)
+SEED_PARTICLES = {"bodies.0.particles_per_cell": SEED_PER_CELL}  #: the :func:`scene` change to the seed's particles
 FREE_FALL = sqrt(2 * GRAVITY * HEIGHT)  #: the column's free-fall speed, the flow's largest, m/s
 AUTO_SOUND_SPEED = 10 * FREE_FALL  #: the weakly compressible practice's artificial sound speed, m/s
 #: the outputs ``files=False`` leaves out: ParaView series, pictures, checkpoints
@@ -95,7 +96,7 @@ def seed_setup(dt: float = SEED_DT) -> dict[str, object]:
     """The :func:`scene` changes of the seed's set-up: a fixed step ``dt`` (the seed's 1 ms) and
     :data:`SEED_PER_CELL` particles per cell (the scene's own step adapts to the flow, over 4 x 4
     particles per cell)."""
-    return {"time.courant": None, "time.dt": dt, "bodies.0.particles_per_cell": SEED_PER_CELL}
+    return {"time.courant": None, "time.dt": dt, **SEED_PARTICLES}
 
 
 def at_seed_setup(scene_: Scene, dt: float = SEED_DT) -> Scene:
