@@ -10,14 +10,16 @@ named here:
 * :data:`EXACT` (the default on one rank, :func:`direct_options`): the velocity-pressure
   system reduced to its pressure Schur complement, solved to round-off. FGMRES on the
   ``full`` Schur factorisation with the velocity block by its diagonal (Jacobi) and the
-  ``selfp`` complement ``S ~ D - C diag(A)^-1 B`` factored by LU: the pressure is a third of
-  the unknowns, so the factorisation is several times cheaper than LU of the whole system,
+  ``selfp`` complement ``S ~ D - C diag(A)^-1 B``: the pressure is a third of the unknowns,
   and as the velocity block is nearly diagonal (the mass over ``beta dt^2``) the iteration
-  reaches ``rtol = 1e-13`` in a few steps, the same solution as LU to round-off. The LU of
-  S is PETSc's own with a reverse Cuthill-McKee ordering for small systems and MUMPS above
-  :data:`SMALL_SYSTEM` free dofs (chosen at every solve unless the options name a package,
-  :func:`schur_factor_options`); should the iteration fail, the system is solved again
-  by MUMPS LU (:data:`DIRECT`);
+  reaches ``rtol = 1e-13`` in a few steps, the same solution as LU to round-off. S is solved
+  by what its size makes cheapest, chosen at every solve unless the options name a package
+  (:func:`schur_factor_options`): PETSc's own LU with a reverse Cuthill-McKee ordering up to
+  :data:`SMALL_SYSTEM` free dofs, MUMPS LU up to :data:`LARGE_SYSTEM`, and above it one
+  V-cycle of algebraic multigrid as in :data:`ITERATIVE` (S couples pressures four functions
+  apart, so its LU fills in fast; the multigrid cycle takes a dozen iterations to the same
+  tolerance in less time). Should the iteration fail, the system is solved again by MUMPS
+  LU (:data:`DIRECT`);
 * :data:`DIRECT`: LU of the whole system by MUMPS (on several ranks sequential MUMPS on every
   rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: FGMRES preconditioned by a Schur-complement field split of the
@@ -47,7 +49,7 @@ from petsc4py import PETSc
 from fempm.errors import InputError
 from fempm.schur import FreeBlocks
 
-__all__ = ["DIRECT", "EXACT", "ITERATIVE", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
+__all__ = ["DIRECT", "EXACT", "ITERATIVE", "LARGE_SYSTEM", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
            "direct_options", "schur_factor_options", "set_options", "writing_option"]
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
@@ -60,27 +62,38 @@ _DIRECT_PARALLEL = {"ksp_type": "preonly", "pc_type": "redundant", "redundant_pc
                     "redundant_pc_factor_mat_solver_type": "mumps"}
 
 
-#: The Schur complement solved exactly (see the module's docstring); the package of S's LU by size.
+_AMG = ({"pc_type": "hypre", "pc_hypre_type": "boomeramg"} if PETSc.Sys.hasExternalPackage("hypre")
+        else {"pc_type": "gamg"})
+#: a pressure block (or Schur complement) by one V-cycle of algebraic multigrid; GAMG with a drop
+#: threshold, since the B-spline stencil is wide
+_PRESSURE_AMG = {**{f"fieldsplit_p_{k}": v for k, v in _AMG.items()},
+                 **({"fieldsplit_p_pc_gamg_threshold": 0.02} if _AMG["pc_type"] == "gamg" else {})}
+
+#: The Schur complement solved exactly (see the module's docstring); S's solver chosen by size.
 EXACT = {
-    "ksp_type": "fgmres", "ksp_rtol": 1e-13, "ksp_atol": 1e-50, "ksp_max_it": 30,
+    "ksp_type": "fgmres", "ksp_rtol": 1e-13, "ksp_atol": 1e-50, "ksp_max_it": 100,
     "pc_type": "fieldsplit", "pc_fieldsplit_type": "schur",
     "pc_fieldsplit_schur_fact_type": "full", "pc_fieldsplit_schur_precondition": "selfp",
     "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
     "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "lu",
 }
-#: Free dofs above which the Schur complement's LU is MUMPS's rather than PETSc's own.
+#: Free dofs above which S's LU is MUMPS's rather than PETSc's own.
 SMALL_SYSTEM = 1500
+#: Free dofs above which S is solved by a multigrid cycle rather than LU.
+LARGE_SYSTEM = 4000
 _SCHUR_FACTOR_NAMES = ("fieldsplit_p_pc_factor_mat_solver_type", "fieldsplit_p_pc_factor_mat_ordering_type",
                        "fieldsplit_p_mat_mumps_icntl_7")
 
 
 def schur_factor_options(free_dofs: int) -> dict:
-    """The package and ordering of the Schur complement's LU for a system of ``free_dofs``: PETSc's
-    with reverse Cuthill-McKee, or MUMPS with approximate minimum degree (QAMD, ``ICNTL(7) = 6``;
-    MUMPS's own choice, METIS on large systems, costs more in the analysis than it saves)."""
-    if free_dofs <= SMALL_SYSTEM:
-        return {"fieldsplit_p_pc_factor_mat_solver_type": "petsc", "fieldsplit_p_pc_factor_mat_ordering_type": "rcm"}
-    return {"fieldsplit_p_pc_factor_mat_solver_type": "mumps", "fieldsplit_p_mat_mumps_icntl_7": 6}
+    """How the Schur complement of a system of ``free_dofs`` is solved: PETSc's LU with reverse
+    Cuthill-McKee, MUMPS's LU with approximate minimum degree (QAMD, ``ICNTL(7) = 6``; MUMPS's own
+    choice, METIS on large systems, costs more in the analysis than it saves), or a multigrid cycle."""
+    if free_dofs > LARGE_SYSTEM:
+        return _PRESSURE_AMG
+    if free_dofs > SMALL_SYSTEM:
+        return {"fieldsplit_p_pc_factor_mat_solver_type": "mumps", "fieldsplit_p_mat_mumps_icntl_7": 6}
+    return {"fieldsplit_p_pc_factor_mat_solver_type": "petsc", "fieldsplit_p_pc_factor_mat_ordering_type": "rcm"}
 
 
 def direct_options(comm, fields: dict[str, int] | None = None) -> dict:
@@ -92,15 +105,12 @@ def direct_options(comm, fields: dict[str, int] | None = None) -> dict:
     return EXACT if fields is None or {"u", "p"} <= set(fields) else DIRECT
 
 
-_AMG = ({"pc_type": "hypre", "pc_hypre_type": "boomeramg"} if PETSc.Sys.hasExternalPackage("hypre")
-        else {"pc_type": "gamg"})
 ITERATIVE = {
     "ksp_type": "fgmres", "ksp_rtol": 1e-13, "ksp_atol": 1e-50, "ksp_max_it": 1000, "ksp_gmres_restart": 100,
     "pc_type": "fieldsplit", "pc_fieldsplit_type": "schur",
     "pc_fieldsplit_schur_fact_type": "full", "pc_fieldsplit_schur_precondition": "selfp",
     "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
-    "fieldsplit_p_ksp_type": "preonly", **{f"fieldsplit_p_{k}": v for k, v in _AMG.items()},
-    **({"fieldsplit_p_pc_gamg_threshold": 0.02} if _AMG["pc_type"] == "gamg" else {}),
+    "fieldsplit_p_ksp_type": "preonly", **_PRESSURE_AMG,
 }
 
 class SolveFailed(RuntimeError):
@@ -229,13 +239,18 @@ class LinearSolver:
         solve); its converged reason."""
         chosen = schur_factor_options(size) if self.exact_schur else {}
         opts = PETSc.Options()
-        for name, value in chosen.items():  # read while the split sets up, then removed
+        before = {name: opts.getString(self.prefix + name) if opts.hasName(self.prefix + name) else None
+                  for name in chosen}
+        for name, value in chosen.items():  # read while the split sets up, then as they were
             opts[self.prefix + name] = value
         try:
             self.ksp.solve(b, x)
         finally:
-            for name in chosen:
-                opts.delValue(self.prefix + name)
+            for name, value in before.items():
+                if value is None:
+                    opts.delValue(self.prefix + name)
+                else:
+                    opts[self.prefix + name] = value
         return self.ksp.getConvergedReason()
 
     def pattern_seed(self) -> list[list[int]] | None:

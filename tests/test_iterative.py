@@ -3,7 +3,7 @@
 One dam-break step from the shipped scene is taken by solvers that differ only in their PETSc
 options: the iterative one (Schur fieldsplit + AMG, ``solver.linear = "iterative"``) must agree
 with LU to 1e-8 relative, the default exact Schur solve (one rank) to round-off; the package of
-the Schur complement's LU follows the size, and a failed Schur iteration is redone by LU.
+the Schur complement's solver follows the size, and a failed Schur iteration is redone by LU.
 Runs on any number of ranks (the MPI suite repeats them on two).
 """
 
@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from fempm import linear
 from fempm.scene import load_scene
@@ -81,6 +82,20 @@ def test_schur_factor_follows_the_size(monkeypatch):
     assert _relative_difference(large, small, comm) < 1e-12  # measured 4e-16
     named, solver = _one_step(comm, petsc={"fieldsplit_p_pc_factor_mat_solver_type": "mumps"})
     assert not solver.exact_schur  # a package the user names is kept, whatever the size
+
+
+def test_large_schur_complement_is_solved_by_multigrid(monkeypatch):
+    """Above LARGE_SYSTEM free dofs S is solved by a multigrid cycle, to the same solution as LU;
+    the options database keeps S's LU for the next, smaller system."""
+    comm = MPI.COMM_SELF
+    lu, _ = _one_step(comm, petsc=linear.DIRECT)
+    monkeypatch.setattr(linear, "LARGE_SYSTEM", 0)
+    cycled, solver = _one_step(comm)
+    schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
+    assert schur.getType() in ("gamg", "hypre") and solver.fallbacks == 0
+    assert 4 < solver.ksp.getIterationNumber() <= 20  # measured 10 (the 28k-particle dam break: 10-14)
+    assert _relative_difference(cycled, lu, comm) < 1e-9  # measured 1.3e-10 (the iterative solver: 8.4e-10)
+    assert PETSc.Options().getString(solver.prefix + "fieldsplit_p_pc_type") == "lu"
 
 
 def test_failed_schur_iteration_is_redone_by_lu():
