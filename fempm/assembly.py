@@ -11,7 +11,11 @@ element matrix is
 with ``phi_p[a, l]`` jet ``a`` of local basis function ``l``, ``C`` a component and
 ``w_p = V_p / h^2`` (the kernel integrates over the h x h jet cell with weight 1).
 When the cell changes, ``A_e`` is added into the CSR storage of the matrix
-(:mod:`fempm.matrix`).
+(:mod:`fempm.matrix`). The sum is taken as ``T = w_p K_p phi_p``, then
+``A_e += phi_p^T T``, three jets at a time. With first-order jets every entry of
+``K_p`` is taken; with higher ones only those in the pattern of the entries
+found non-zero so far, grown when a particle's kernel has one outside it: the
+skipped entries are zero at that particle, so the sums are the same.
 
 Integrals over ``dx_lumped`` use nodal quadrature instead (row-sum lumping):
 ``sum_p V_p sum_f N_f(x_p) g(x_p; grid functions at f)``, the integrand evaluated
@@ -46,50 +50,128 @@ def _jet_cell(x, h, coords):
         coords[3 * v + 2] = 0.0
 
 
-@numba.njit(cache=True, fastmath=True)
-def _add_particle(K, comp, jet, w, phi_p, T, rows, Ae):
-    """``Ae += w * phi_p^T K phi_p``, visiting only the non-zero entries of ``K``.
+@numba.njit(cache=True)
+def _outside_pattern(K, pattern):
+    """Number of non-zero entries of ``K`` outside ``pattern`` (a mask over ``K``'s entries); a
+    comparison per entry, no branch, so that it vectorises (a NaN counts as non-zero)."""
+    count = 0
+    for i in range(K.shape[0]):
+        count += (K[i] != 0.0) & (not pattern[i])
+    return count
 
-    ``comp[i], jet[i]``: component and jet of kernel dof ``i``. For each kernel row ``(C, a)`` that
-    has a non-zero entry, ``T[g, D nl + m] = w sum_b K[(C, a), (D, b)] phi_p[b, m]`` over all ``D``
-    at once (``g`` in the order of first appearance, its row in ``rows``), then
-    ``Ae[C, l, :] += phi_p[a, l] T[g, :]``: ``Ae`` is ``(bs, nl, width)``, a row of ``bs nl``
-    contiguous entries per ``(C, l)`` padded to ``width`` (the inner loop vectorises whole).
+
+@numba.njit(cache=True)
+def _active_jets(pattern, perm, C):
+    """Jets ``a`` of component ``C`` whose kernel row ``(C, a)`` has an entry in ``pattern``, ascending."""
+    bs, nq = perm.shape
+    nk = bs * nq
+    active = np.empty(nq, dtype=np.int64)
+    count = 0
+    for a in range(nq):
+        r = perm[C, a] * nk
+        if pattern[r: r + nk].any():
+            active[count] = a
+            count += 1
+    return active[:count]
+
+
+@numba.njit(cache=True)
+def _row_chunks(pattern, perm, r, g, nl, tchunks, t):
+    """The chunks of :func:`_add_particle_pattern` that make ``T[g]`` from kernel row ``r``: per component
+    ``D``, its pattern's jets ``b`` in threes, ascending, the first three padded in front; from ``t`` on
+    in ``tchunks``; returns the next free chunk."""
+    bs, nq = perm.shape
+    nk = bs * nq
+    jets = np.empty(nq, dtype=np.int64)
+    for D in range(bs):
+        count = 0
+        for b in range(nq):
+            if pattern[r * nk + perm[D, b]]:
+                jets[count] = b
+                count += 1
+        chunks = max((count + 2) // 3, 1)  # at least one: it writes the block's zeros
+        pad = 3 * chunks - count
+        for i in range(3 * chunks):
+            c, slot = t + i // 3, i % 3
+            if slot == 0:
+                tchunks[c, 0], tchunks[c, 1], tchunks[c, 8] = g, D * nl, i == 0
+            if i < pad:
+                tchunks[c, 2 + slot], tchunks[c, 5 + slot] = nk * nk, 0  # K's zero entry
+            else:
+                b = jets[i - pad]
+                tchunks[c, 2 + slot], tchunks[c, 5 + slot] = r * nk + perm[D, b], b
+        t += chunks
+    return t
+
+
+@numba.njit(cache=True)
+def _grow_pattern(K, pattern, perm, nl, zero_row, tchunks, achunks):
+    """Add ``K``'s non-zero entries to ``pattern`` and remake the chunks of :func:`_add_particle_pattern`
+    (``tchunks``, ``achunks``); returns how many of each.
+
+    The kernel rows with an entry in the pattern get a row ``g`` of ``T`` each, component by component;
+    a component's rows go into ``achunks`` in threes, the first three padded in front with ``T``'s
+    row ``zero_row``, which stays zero."""
+    bs = perm.shape[0]
+    pattern |= K != 0.0
+    g = t = n_a = 0
+    for C in range(bs):
+        active = _active_jets(pattern, perm, C)
+        chunks = (active.size + 2) // 3
+        pad = 3 * chunks - active.size
+        for i in range(3 * chunks):
+            c, slot = n_a + i // 3, i % 3
+            achunks[c, 0] = C
+            if i < pad:
+                achunks[c, 1 + slot], achunks[c, 4 + slot] = zero_row, 0
+                continue
+            a = active[i - pad]
+            achunks[c, 1 + slot], achunks[c, 4 + slot] = g, a
+            t = _row_chunks(pattern, perm, perm[C, a], g, nl, tchunks, t)
+            g += 1
+        n_a += chunks
+    return t, n_a
+
+
+@numba.njit(cache=True, fastmath=True)
+def _add_particle_pattern(K, w, phi_p, tchunks, n_t, achunks, n_a, T, Ae):
+    """``Ae += w * phi_p^T K phi_p`` over the entries of ``K`` in a pattern that holds all its non-zero
+    ones (:func:`_grow_pattern`), three jets at a time so that the loops vectorise whole.
+
+    ``T[g, D nl + m] = w sum_b K[r_g, (D, b)] phi_p[b, m]`` for the kernel rows ``r_g`` with pattern
+    entries, a chunk ``(g, D nl, three entries of K, their jets b, first)`` adding three terms (writing
+    them if first); then ``Ae[C, l, :] += sum_a phi_p[a, l] T[g_a, :]``, a chunk ``(C, three rows
+    g_a, their jets a)`` adding three rows. Padding (K's zero entry, ``T``'s zero row) and the pattern's
+    entries that are zero at this particle add exact zeros: the sums are those over the non-zero
+    entries, in the order of the loop over all of them. ``Ae`` is ``(bs, nl, width)``, a row of
+    ``bs nl`` contiguous entries per ``(C, l)`` padded to ``width``.
     """
-    nk = comp.shape[0]
     nl = phi_p.shape[1]
     width = T.shape[1]
-    count = 0
-    for i in range(nk):
-        g = -1
-        for j in range(nk):
-            k = K[i * nk + j]
-            if k != 0.0:
-                if g < 0:
-                    g = count
-                    rows[g] = i
-                    count += 1
-                    for e in range(width):
-                        T[g, e] = 0.0
-                k *= w
-                base = comp[j] * nl
-                b = jet[j]
-                for m in range(nl):
-                    T[g, base + m] += k * phi_p[b, m]
-    for g in range(count):
-        i = rows[g]
-        C, a = comp[i], jet[i]
+    for c in range(n_t):
+        g, base, first = tchunks[c, 0], tchunks[c, 1], tchunks[c, 8]
+        k0, k1, k2 = w * K[tchunks[c, 2]], w * K[tchunks[c, 3]], w * K[tchunks[c, 4]]
+        b0, b1, b2 = tchunks[c, 5], tchunks[c, 6], tchunks[c, 7]
+        if first:
+            for m in range(nl):
+                T[g, base + m] = k0 * phi_p[b0, m] + k1 * phi_p[b1, m] + k2 * phi_p[b2, m]
+        else:
+            for m in range(nl):
+                T[g, base + m] += k0 * phi_p[b0, m] + k1 * phi_p[b1, m] + k2 * phi_p[b2, m]
+    for c in range(n_a):
+        C, g0, g1, g2 = achunks[c, 0], achunks[c, 1], achunks[c, 2], achunks[c, 3]
+        a0, a1, a2 = achunks[c, 4], achunks[c, 5], achunks[c, 6]
         for l in range(nl):
-            f = phi_p[a, l]
+            f0, f1, f2 = phi_p[a0, l], phi_p[a1, l], phi_p[a2, l]
             for e in range(width):
-                Ae[C, l, e] += f * T[g, e]
+                Ae[C, l, e] += f0 * T[g0, e] + f1 * T[g1, e] + f2 * T[g2, e]
 
 
 @numba.njit(cache=True, fastmath=True)
 def _add_particle_first_order(K, perm, w, phi_p, T, Ae):
-    """:func:`_add_particle` for jets of value and first derivatives (three per component), every
-    entry of ``K`` taken: with the jet sums written out the loops vectorise whole, which the general
-    loop over the non-zero entries does not.
+    """``Ae += w * phi_p^T K phi_p`` for jets of value and first derivatives (three per component), every
+    entry of ``K`` taken, the jet sums written out: with few zero entries to skip this is cheaper than
+    :func:`_add_particle_pattern`'s look-ups, and adds the same terms in the same order.
 
     ``T[(C, a), D nl + m] = w sum_b K[(C, a), (D, b)] phi_p[b, m]``, then
     ``Ae[C, l, :] += sum_a phi_p[a, l] T[(C, a), :]`` (``perm[C, a]``: kernel dof of jet ``a`` of ``C``).
@@ -113,19 +195,6 @@ def _add_particle_first_order(K, perm, w, phi_p, T, Ae):
             f0, f1, f2 = phi_p[0, l], phi_p[1, l], phi_p[2, l]
             for e in range(width):
                 Ae[C, l, e] += f0 * T[r, e] + f1 * T[r + 1, e] + f2 * T[r + 2, e]
-
-
-@numba.njit(cache=True)
-def _dof_jets(perm):
-    """Component and jet of every kernel dof (the inverse of ``perm[C, a]``)."""
-    bs, nq = perm.shape
-    comp = np.empty(bs * nq, dtype=np.int64)
-    jet = np.empty(bs * nq, dtype=np.int64)
-    for C in range(bs):
-        for a in range(nq):
-            comp[perm[C, a]] = C
-            jet[perm[C, a]] = a
-    return comp, jet
 
 
 @numba.njit(cache=True)
@@ -156,23 +225,29 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
 
     ``vector``: None, or ``(kernel, out, consts, perm)`` of a linear form whose kernel reads
     ``coeffs[p]`` whole (the residual whose Jacobian this is), added into ``out`` in the same pass
-    as :func:`assemble_vector` would. The element matrix's rows are padded to a multiple of 4
-    entries: the vectorised inner loops of :func:`_add_particle` (:func:`_add_particle_first_order` for
-    first-order jets) then have no scalar remainder."""
+    as :func:`assemble_vector` would. First-order jets go through :func:`_add_particle_first_order`,
+    others through :func:`_add_particle_pattern` over the pattern of the kernel's non-zero entries, grown
+    at a particle whose kernel has one outside it (second-order jets: most kernel rows are zero, the
+    second derivatives entering through a few terms). The element matrix's rows are padded to a
+    multiple of 4 entries: the vectorised inner loops then have no scalar remainder."""
     n = cell.shape[0]
     bs, nq = perm.shape
     nl = phi.shape[2]
     nk = bs * nq
     k1 = int(np.sqrt(nl) + 0.5)
-    K = np.zeros(nk * nk)
+    K = np.zeros(nk * nk + 1)  # the last entry stays zero: the pattern's padding reads it
     w = np.empty(columns.shape[0])
-    comp, jet = _dof_jets(perm)
     width = (bs * nl + 3) // 4 * 4
-    T = np.zeros((nk, width))
-    rows = np.empty(nk, dtype=np.int64)
+    T = np.zeros((nk + 1, width))  # the last row stays zero: the pattern's padding reads it
     Ae = np.zeros((bs, nl, width))
     offsets = np.empty(nl, dtype=np.int64)
     coords = np.zeros(12)
+    pattern = np.zeros(nk * nk + 1, dtype=np.bool_)
+    pattern[-1] = True
+    per_row = (nq + 2) // 3
+    tchunks = np.zeros((nk * bs * per_row, 9), dtype=np.int64)
+    achunks = np.zeros((bs * per_row, 7), dtype=np.int64)
+    n_t = n_a = 0
     if vector is not None:
         Kv = np.zeros(vector[3].size)
     cur = -1
@@ -196,8 +271,10 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
         kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
         if nq == 3:
             _add_particle_first_order(K, perm, weight[p], phi[p], T, Ae)
-        else:
-            _add_particle(K, comp, jet, weight[p], phi[p], T, rows, Ae)
+            continue
+        if _outside_pattern(K, pattern):
+            n_t, n_a = _grow_pattern(K, pattern, perm, nl, nk, tchunks, achunks)
+        _add_particle_pattern(K, weight[p], phi[p], tchunks, n_t, achunks, n_a, T, Ae)
     return 0
 
 
