@@ -214,20 +214,26 @@ def function_nodes(space: Space) -> np.ndarray:
     return cached
 
 
+@numba.njit(cache=True, inline="always")
+def _spread_affine(phi_p, lfun_p, nodes, x_p, values_p, gradients_p, out, counts):
+    """One particle's ``out[f, c] += phi_p[l] (values_p[c] + gradients_p[c] . (nodes[f] - x_p))`` with
+    ``f = lfun_p[l]``; with ``counts`` also ``out[f, -1] += 1``."""
+    nc = values_p.shape[0]
+    for l in range(lfun_p.shape[0]):
+        f = lfun_p[l]
+        rx, ry = nodes[f, 0] - x_p[0], nodes[f, 1] - x_p[1]
+        w = phi_p[l]
+        for c in range(nc):
+            out[f, c] += w * (values_p[c] + gradients_p[c, 0] * rx + gradients_p[c, 1] * ry)
+        if counts:
+            out[f, nc] += 1.0
+
+
 @numba.njit(cache=True)
 def _scatter_affine(phi0, lfun, nodes, x, values, gradients, out, counts):
-    """``out[f, c] += phi0[p, l] (values[p, c] + gradients[p, c] . (nodes[f] - x[p]))`` with
-    ``f = lfun[p, l]``; with ``counts`` also ``out[f, -1] += 1``."""
-    nc = values.shape[1]
+    """:func:`_spread_affine` of every particle."""
     for p in range(phi0.shape[0]):
-        for l in range(phi0.shape[1]):
-            f = lfun[p, l]
-            rx, ry = nodes[f, 0] - x[p, 0], nodes[f, 1] - x[p, 1]
-            w = phi0[p, l]
-            for c in range(nc):
-                out[f, c] += w * (values[p, c] + gradients[p, c, 0] * rx + gradients[p, c, 1] * ry)
-            if counts:
-                out[f, nc] += 1.0
+        _spread_affine(phi0[p], lfun[p], nodes, x[p], values[p], gradients[p], out, counts)
 
 
 def affine_particles_to_grid(space: Space, particles, values, gradients, name: str = "p2g", counts: bool = False,
@@ -435,27 +441,31 @@ def project_state(particles, kind: str, out: GridFunction) -> GridFunction:
         mass = particles["mass"][:, None]
         values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
         return particles_to_grid(out.space, particles, values, counts=True, out=out)
-    values, gradients = _weighted_state(particles["mass"], particles["velocity"], particles["acceleration"],
-                                        particles[AFFINE_FIELDS[0]], particles[AFFINE_FIELDS[1]])
-    return affine_particles_to_grid(out.space, particles, values, gradients, counts=True, out=out)
+    phi, lfun = out.space.tabulate_particles(particles, order=0)
+    out.values[:] = 0.0
+    _scatter_state(phi, lfun, function_nodes(out.space), np.ascontiguousarray(particles.x), particles["mass"],
+                   particles["velocity"], particles["acceleration"], particles[AFFINE_FIELDS[0]],
+                   particles[AFFINE_FIELDS[1]], out.values)
+    out.scatter_reverse_add()
+    out.scatter_forward()
+    return out
 
 
 @numba.njit(cache=True)
-def _weighted_state(mass, velocity, acceleration, affine_velocity, affine_acceleration):
-    """The values ``[m, m v, m a]`` ``(n, 5)`` and affine parts ``[0, m C_v, m C_a]`` ``(n, 5, 2)`` that
-    :func:`project_state` spreads."""
-    n = mass.shape[0]
-    values, gradients = np.empty((n, 5)), np.zeros((n, 5, 2))
-    for p in range(n):
+def _scatter_state(phi, lfun, nodes, x, mass, velocity, acceleration, affine_velocity, affine_acceleration, out):
+    """:func:`project_state`'s affine P2G particle by particle (:func:`_spread_affine`): the values
+    ``[m, m v, m a]`` with the affine parts ``[0, m C_v, m C_a]``, and the counts."""
+    values, gradients = np.empty(5), np.zeros((5, 2))
+    for p in range(lfun.shape[0]):
         m = mass[p]
-        values[p, 0] = m
+        values[0] = m
         for c in range(2):
-            values[p, 1 + c] = m * velocity[p, c]
-            values[p, 3 + c] = m * acceleration[p, c]
+            values[1 + c] = m * velocity[p, c]
+            values[3 + c] = m * acceleration[p, c]
             for d in range(2):
-                gradients[p, 1 + c, d] = m * affine_velocity[p, c, d]
-                gradients[p, 3 + c, d] = m * affine_acceleration[p, c, d]
-    return values, gradients
+                gradients[1 + c, d] = m * affine_velocity[p, c, d]
+                gradients[3 + c, d] = m * affine_acceleration[p, c, d]
+        _spread_affine(phi[p, 0], lfun[p], nodes, x[p], values, gradients, out, True)
 
 
 #: how :func:`_g2p_state` takes the affine parts (:func:`affine_rule`), by index (-1: none, for FLIP)
