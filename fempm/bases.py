@@ -47,7 +47,7 @@ def jet_indices(order: int) -> list[tuple[int, int]]:
     return [(a, s - a) for s in range(order + 1) for a in range(s, -1, -1)]
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
 def _poly_derivatives(c, xi, order, powers, out):
     """Values and derivatives up to ``order`` at ``xi`` of polynomials ``c[a, m]``; ``powers``: room
     for ``xi ** m``, taken once for all the polynomials."""

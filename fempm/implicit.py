@@ -68,6 +68,16 @@ def _g2p_fields(U, u, p, v_n, a_n, v_new, a_new, out, du, dv, da, v, a, pressure
         out[f, pressure] = U[f, p]
 
 
+@numba.njit(cache=True)
+def _move(values, du, p, x, pressure):
+    """:meth:`ImplicitSolver.update`'s ``x += du`` and pressure, in place, from the grid fields' ``values``
+    at the particles (the components ``du`` and ``p``)."""
+    for q in range(x.shape[0]):
+        for c in range(2):
+            x[q, c] = x[q, c] + values[q, du + c]
+        pressure[q] = values[q, p]
+
+
 class ImplicitSolver(Stepper):
     """Advances particles of an incompressible viscous fluid by the implicit MPM.
 
@@ -114,6 +124,7 @@ class ImplicitSolver(Stepper):
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
+        self._values, self._divergence = np.empty((0, self._g2p.space.bs)), np.empty(0)  # G2P's (_particle_room)
 
     # -- one step (Stepper.step chooses dt, retries, moves the clock) ---------------------------
     def advance(self, dt: float):
@@ -199,17 +210,24 @@ class ImplicitSolver(Stepper):
         _g2p_fields(s.U.values, s.space.field_offset("u"), s.space.field_offset("p"), s.fields["grid_velocity"].values,
                     s.fields["grid_acceleration"].values, v_new, a_new, g.values,
                     *(g.space.field_offset(name) for name in ("du", "dv", "da", "v", "a", "p")))
-        jets = transfer.grid_jets_to_particles(g, p, order=1)
         sc = self.scheme
-        transfer.update_state(g, jets, p, sc.transfer, transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt))
-        p["pressure"][:] = jets[:, 0, g.space.field_slice("p")][:, 0]
-        p.fields["x"] = s.walls.keep_inside(p.x + jets[:, 0, g.space.field_slice("du")])
-        v, h = g.space.field_offset("v"), self.grid.h  # div v = (dv_x/dxi + dv_y/deta) / h, as transfer.gradient
-        divergence = np.abs(jets[:, 1, v] / h + jets[:, 2, v + 1] / h).max(initial=0.0)
-        self.max_divergence = self.grid.comm.allreduce(float(divergence), op=MPI.MAX)
+        values, divergence = self._particle_room(len(p), g.space.bs)
+        transfer.update_state(g, p, sc.transfer, transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt),
+                              values, divergence)
+        x = p.x
+        _move(values, g.space.field_offset("du"), g.space.field_offset("p"), x, p["pressure"])
+        p.fields["x"] = s.walls.keep_inside(x)
+        self.max_divergence = self.grid.comm.allreduce(float(np.abs(divergence).max(initial=0.0)), op=MPI.MAX)
         self.check_pressure(p["pressure"], s.dt)
         if self.check_energy:
             self.check_energy(s.dt)
+
+    def _particle_room(self, n: int, bs: int) -> tuple[np.ndarray, np.ndarray]:
+        """Room for G2P's values ``(n, bs)`` and divergences ``(n,)`` at ``n`` particles, kept from step to
+        step while the count of particles stays."""
+        if len(self._divergence) != n:
+            self._values, self._divergence = np.empty((n, bs)), np.empty(n)
+        return self._values, self._divergence
 
     # -- what an adaptive step needs ---------------------------------------------------------
     def fastest(self) -> float:

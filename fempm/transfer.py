@@ -26,7 +26,10 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
 from mpi4py import MPI
+from numba.core import types
+from numba.extending import intrinsic
 
 from fempm.assembly import jets_at_particles
 from fempm.bases import jet_indices
@@ -145,16 +148,6 @@ def flip(velocity: np.ndarray, change: np.ndarray, new: np.ndarray, pic_blend: f
 _flip = numba.njit(cache=True)(flip)  # the same formula on numbers, for the kernels
 
 
-@numba.njit(cache=True)
-def _flip_state(at, dv, da, v, a, velocity, acceleration, share):
-    """:func:`flip` of the particles' two-component ``velocity`` and ``acceleration`` in place, the
-    changes and new values read from ``at`` ``(n, bs)`` at the components from ``dv``, ``da``, ``v``, ``a``."""
-    for p in range(at.shape[0]):
-        for c in range(2):
-            velocity[p, c] = _flip(velocity[p, c], at[p, dv + c], at[p, v + c], share)
-            acceleration[p, c] = _flip(acceleration[p, c], at[p, da + c], at[p, a + c], share)
-
-
 def _jets(gf: GridFunction, particles, order: int) -> np.ndarray:
     phi, lfun = gf.space.tabulate_particles(particles, order, exact=False)
     out = np.empty((len(particles), len(jet_indices(order)), gf.space.bs))
@@ -221,20 +214,26 @@ def function_nodes(space: Space) -> np.ndarray:
     return cached
 
 
+@numba.njit(cache=True, inline="always")
+def _spread_affine(phi_p, lfun_p, nodes, x_p, values_p, gradients_p, out, counts):
+    """One particle's ``out[f, c] += phi_p[l] (values_p[c] + gradients_p[c] . (nodes[f] - x_p))`` with
+    ``f = lfun_p[l]``; with ``counts`` also ``out[f, -1] += 1``."""
+    nc = values_p.shape[0]
+    for l in range(lfun_p.shape[0]):
+        f = lfun_p[l]
+        rx, ry = nodes[f, 0] - x_p[0], nodes[f, 1] - x_p[1]
+        w = phi_p[l]
+        for c in range(nc):
+            out[f, c] += w * (values_p[c] + gradients_p[c, 0] * rx + gradients_p[c, 1] * ry)
+        if counts:
+            out[f, nc] += 1.0
+
+
 @numba.njit(cache=True)
 def _scatter_affine(phi0, lfun, nodes, x, values, gradients, out, counts):
-    """``out[f, c] += phi0[p, l] (values[p, c] + gradients[p, c] . (nodes[f] - x[p]))`` with
-    ``f = lfun[p, l]``; with ``counts`` also ``out[f, -1] += 1``."""
-    nc = values.shape[1]
+    """:func:`_spread_affine` of every particle."""
     for p in range(phi0.shape[0]):
-        for l in range(phi0.shape[1]):
-            f = lfun[p, l]
-            rx, ry = nodes[f, 0] - x[p, 0], nodes[f, 1] - x[p, 1]
-            w = phi0[p, l]
-            for c in range(nc):
-                out[f, c] += w * (values[p, c] + gradients[p, c, 0] * rx + gradients[p, c, 1] * ry)
-            if counts:
-                out[f, nc] += 1.0
+        _spread_affine(phi0[p], lfun[p], nodes, x[p], values[p], gradients[p], out, counts)
 
 
 def affine_particles_to_grid(space: Space, particles, values, gradients, name: str = "p2g", counts: bool = False,
@@ -266,28 +265,42 @@ def affine_particles_to_grid(space: Space, particles, values, gradients, name: s
     return out
 
 
+@numba.njit(cache=True, inline="always")
+def _second_moments(phi_p, lfun_p, nodes, x_p):
+    """One particle's ``D = sum_l phi_p[0, l] (x_f - x_p)(x_f - x_p)^T`` as ``(d00, d01, d11)``, each sum
+    over ``l`` in order from 0."""
+    d00 = d01 = d11 = 0.0
+    for l in range(lfun_p.shape[0]):
+        f, w = lfun_p[l], phi_p[0, l]
+        rx, ry = nodes[f, 0] - x_p[0], nodes[f, 1] - x_p[1]
+        d00 += w * rx * rx
+        d01 += w * rx * ry
+        d11 += w * ry * ry
+    return d00, d01, d11
+
+
+@numba.njit(cache=True, inline="always")
+def _first_moment(phi_p, lfun_p, nodes, x_p, grid_values, c):
+    """One particle's ``B_c = sum_l phi_p[0, l] f_c (x_f - x_p)`` of component ``c`` of ``grid_values``,
+    each sum over ``l`` in order from 0."""
+    bx = by = 0.0
+    for l in range(lfun_p.shape[0]):
+        f = lfun_p[l]
+        wf = phi_p[0, l] * grid_values[f, c]
+        bx += wf * (nodes[f, 0] - x_p[0])
+        by += wf * (nodes[f, 1] - x_p[1])
+    return bx, by
+
+
 @numba.njit(cache=True)
 def _apic_moments(phi, lfun, nodes, x, grid_values, components, B, D):
-    """``B[p, c] = sum_l phi[p, 0, l] f[components[c]] (x_f - x_p)`` and
-    ``D[p] = sum_l phi[p, 0, l] (x_f - x_p)(x_f - x_p)^T``, each sum over ``l`` in order from 0."""
-    nc = components.shape[0]
-    b = np.empty((nc, 2))
+    """APIC's moments of every particle into ``B`` ``(n, nc, 2)`` (:func:`_first_moment` of the ``components``)
+    and ``D`` ``(n, 2, 2)`` (:func:`_second_moments`)."""
     for p in range(lfun.shape[0]):
-        d00 = d01 = d11 = 0.0
-        b[:] = 0.0
-        for l in range(lfun.shape[1]):
-            f = lfun[p, l]
-            w = phi[p, 0, l]
-            rx, ry = nodes[f, 0] - x[p, 0], nodes[f, 1] - x[p, 1]
-            d00 += w * rx * rx
-            d01 += w * rx * ry
-            d11 += w * ry * ry
-            for c in range(nc):
-                wf = w * grid_values[f, components[c]]
-                b[c, 0] += wf * rx
-                b[c, 1] += wf * ry
+        d00, d01, d11 = _second_moments(phi[p], lfun[p], nodes, x[p])
         D[p, 0, 0], D[p, 0, 1], D[p, 1, 0], D[p, 1, 1] = d00, d01, d01, d11
-        B[p] = b
+        for k in range(components.shape[0]):
+            B[p, k, 0], B[p, k, 1] = _first_moment(phi[p], lfun[p], nodes, x[p], grid_values, components[k])
 
 
 def affine_moments(space: Space, particles, grid_values: np.ndarray | None = None,
@@ -330,27 +343,46 @@ def affine_grid_to_particles(gf: GridFunction, particles, kind: str = "apic", je
     if kind == "tpic":
         return values, gradient(jets, gf.space.grid.h)[:, components]
     D, B = affine_moments(gf.space, particles, gf.values, components)
-    return values, B @ _inverse_moments(D, gf.space.grid.h)
+    C = np.empty_like(B)
+    _apic_affine_parts(B, D, _moment_floor(gf.space.grid.h), C)
+    return values, C
 
 
-def _inverse_moments(D: np.ndarray, h: float) -> np.ndarray:
-    """``D^-1`` of symmetric 2 x 2 moments; a vanishing moment (a particle on a clamped wall or a
-    Q1 node, where B vanishes too) is floored at ``1e-14 h^2``, its part of ``C`` then zero."""
-    inverse = np.empty_like(D)
-    _invert_moments(D, 1e-14 * h * h, inverse)
-    return inverse
+def _moment_floor(h: float) -> float:
+    """The least diagonal moment :func:`_times_inverse_moments` divides by: a vanishing moment (a particle on
+    a clamped wall or a Q1 node, where B vanishes too) is floored at ``1e-14 h^2``, its part of ``C`` then zero."""
+    return 1e-14 * h * h
+
+
+@intrinsic
+def _fma(typingctx, a, b, c):
+    """``a b + c`` rounded once, in kernels: LLVM's ``llvm.fma.f64`` (the hardware's fused multiply-add)."""
+    def codegen(context, builder, signature, args):
+        double = ir.DoubleType()
+        fma = builder.module.declare_intrinsic("llvm.fma", [double], ir.FunctionType(double, [double] * 3))
+        return builder.call(fma, args)
+    return types.float64(types.float64, types.float64, types.float64), codegen
+
+
+@numba.njit(cache=True, inline="always")
+def _times_inverse_moments(b, d00, d01, d11, floor, C):
+    """``C = b D^-1`` of one particle, ``b`` ``(nc, 2)``, ``D`` symmetric with entries ``d00``, ``d01``,
+    ``d11``, its diagonal floored at ``floor`` (``max`` keeps a NaN, as ``np.maximum``). Each entry
+    is ``fma(b_1, Dinv_1e, b_0 Dinv_0e)``, as a BLAS product ``B @ D^-1`` rounds it on FMA hardware."""
+    a = floor if d00 < floor else d00
+    d = floor if d11 < floor else d11
+    det = a * d - d01 * d01
+    i00, i01, i11 = d / det, -d01 / det, a / det
+    for c in range(b.shape[0]):
+        C[c, 0] = _fma(b[c, 1], i01, b[c, 0] * i00)
+        C[c, 1] = _fma(b[c, 1], i11, b[c, 0] * i01)
 
 
 @numba.njit(cache=True)
-def _invert_moments(D, floor, inverse):
-    """:func:`_inverse_moments` particle by particle (``max`` keeps a NaN, as ``np.maximum``)."""
-    for p in range(D.shape[0]):
-        a, b, d = D[p, 0, 0], D[p, 0, 1], D[p, 1, 1]
-        a = floor if a < floor else a
-        d = floor if d < floor else d
-        det = a * d - b * b
-        inverse[p, 0, 0], inverse[p, 1, 1] = d / det, a / det
-        inverse[p, 0, 1] = inverse[p, 1, 0] = -b / det
+def _apic_affine_parts(B, D, floor, C):
+    """APIC's ``C_p = B_p D_p^-1`` (:func:`_times_inverse_moments`) of every particle."""
+    for p in range(B.shape[0]):
+        _times_inverse_moments(B[p], D[p, 0, 0], D[p, 0, 1], D[p, 1, 1], floor, C[p])
 
 
 def angular_momentum(space: Space, particles, gradients: np.ndarray | None = None, centre=(0.0, 0.0)) -> float:
@@ -409,41 +441,110 @@ def project_state(particles, kind: str, out: GridFunction) -> GridFunction:
         mass = particles["mass"][:, None]
         values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
         return particles_to_grid(out.space, particles, values, counts=True, out=out)
-    values, gradients = _weighted_state(particles["mass"], particles["velocity"], particles["acceleration"],
-                                        particles[AFFINE_FIELDS[0]], particles[AFFINE_FIELDS[1]])
-    return affine_particles_to_grid(out.space, particles, values, gradients, counts=True, out=out)
+    phi, lfun = out.space.tabulate_particles(particles, order=0)
+    out.values[:] = 0.0
+    _scatter_state(phi, lfun, function_nodes(out.space), np.ascontiguousarray(particles.x), particles["mass"],
+                   particles["velocity"], particles["acceleration"], particles[AFFINE_FIELDS[0]],
+                   particles[AFFINE_FIELDS[1]], out.values)
+    out.scatter_reverse_add()
+    out.scatter_forward()
+    return out
 
 
 @numba.njit(cache=True)
-def _weighted_state(mass, velocity, acceleration, affine_velocity, affine_acceleration):
-    """The values ``[m, m v, m a]`` ``(n, 5)`` and affine parts ``[0, m C_v, m C_a]`` ``(n, 5, 2)`` that
-    :func:`project_state` spreads."""
-    n = mass.shape[0]
-    values, gradients = np.empty((n, 5)), np.zeros((n, 5, 2))
-    for p in range(n):
+def _scatter_state(phi, lfun, nodes, x, mass, velocity, acceleration, affine_velocity, affine_acceleration, out):
+    """:func:`project_state`'s affine P2G particle by particle (:func:`_spread_affine`): the values
+    ``[m, m v, m a]`` with the affine parts ``[0, m C_v, m C_a]``, and the counts."""
+    values, gradients = np.empty(5), np.zeros((5, 2))
+    for p in range(lfun.shape[0]):
         m = mass[p]
-        values[p, 0] = m
+        values[0] = m
         for c in range(2):
-            values[p, 1 + c] = m * velocity[p, c]
-            values[p, 3 + c] = m * acceleration[p, c]
+            values[1 + c] = m * velocity[p, c]
+            values[3 + c] = m * acceleration[p, c]
             for d in range(2):
-                gradients[p, 1 + c, d] = m * affine_velocity[p, c, d]
-                gradients[p, 3 + c, d] = m * affine_acceleration[p, c, d]
-    return values, gradients
+                gradients[1 + c, d] = m * affine_velocity[p, c, d]
+                gradients[3 + c, d] = m * affine_acceleration[p, c, d]
+        _spread_affine(phi[p, 0], lfun[p], nodes, x[p], values, gradients, out, True)
 
 
-def update_state(g2p: GridFunction, jets: np.ndarray, particles, kind: str, share: float):
+#: how :func:`_g2p_state` takes the affine parts (:func:`affine_rule`), by index (-1: none, for FLIP)
+_G2P_RULES = ("apic", "tpic")
+
+
+def update_state(g2p: GridFunction, particles, kind: str, share: float, values: np.ndarray,
+                 divergence: np.ndarray):
     """G2P of velocity and acceleration from ``g2p`` (fields ``dv``, ``da``: the step's changes;
-    ``v``, ``a``: the new values) and its ``jets`` at the particles.
+    ``v``, ``a``: the new values), in one pass over the particles.
 
     The values by :func:`flip` with the PIC ``share``; for the affine kinds also the affine
     parts of ``v_{n+1}`` and ``a_{n+1}``, taken whole (``B_p D_p^-1`` for ``apic`` and
     ``affine-flip``, the grid gradient for ``tpic``). The acceleration, Newmark's state, goes
     as the velocity, so that the next step starts from one transferred pair.
+
+    For the rest of a caller's G2P, into its buffers (reused from step to step): ``values``
+    ``(n, bs)``, all of ``g2p`` at the particles, and ``divergence`` ``(n,)``, ``div v_{n+1}`` there.
     """
     space = g2p.space
-    _flip_state(jets[:, 0], *(space.field_offset(name) for name in ("dv", "da", "v", "a")), particles["velocity"],
-                particles["acceleration"], float(share))
-    if kind != "flip":
-        _, affine = affine_grid_to_particles(g2p, particles, affine_rule(kind), jets, space.components("v", "a"))
-        particles[AFFINE_FIELDS[0]][:], particles[AFFINE_FIELDS[1]][:] = affine[:, :2], affine[:, 2:]
+    phi, lfun = space.tabulate_particles(particles, order=1, exact=False)
+    if kind == "flip":
+        rule, affine = -1, (np.empty((0, 2, 2)),) * 2
+    else:
+        rule, affine = _G2P_RULES.index(affine_rule(kind)), (particles[name] for name in AFFINE_FIELDS)
+    _g2p_state(phi, lfun, function_nodes(space), np.ascontiguousarray(particles.x), g2p.values,
+               np.array([space.field_offset(name) for name in ("dv", "da", "v", "a")]), float(share), rule,
+               space.grid.h, _moment_floor(space.grid.h), particles["velocity"], particles["acceleration"], *affine,
+               values, divergence)
+
+
+@numba.njit(cache=True, inline="always")
+def _particle_values(phi_p, lfun_p, grid_values, out):
+    """``out[c] = sum_l phi_p[0, l] grid_values[lfun_p[l], c]``: one particle's values of a grid function,
+    each sum over ``l`` in order from 0.0 (the functions outermost: the components run contiguous)."""
+    for c in range(out.shape[0]):
+        out[c] = 0.0
+    for l in range(lfun_p.shape[0]):
+        f, w = lfun_p[l], phi_p[0, l]
+        for c in range(out.shape[0]):
+            out[c] += w * grid_values[f, c]
+
+
+@numba.njit(cache=True, inline="always")
+def _particle_derivative(phi_p, lfun_p, grid_values, d, c):
+    """``sum_l phi_p[1 + d, l] grid_values[lfun_p[l], c]``: one particle's derivative along reference
+    coordinate ``d`` of component ``c`` of a grid function, the sum over ``l`` in order from 0.0."""
+    s = 0.0
+    for l in range(lfun_p.shape[0]):
+        s += phi_p[1 + d, l] * grid_values[lfun_p[l], c]
+    return s
+
+
+@numba.njit(cache=True)
+def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rule, h, floor, velocity, acceleration,
+               affine_velocity, affine_acceleration, values, divergence):
+    """:func:`update_state` particle by particle: the values of ``grid_values`` into ``values[p]``, the
+    :func:`flip` of velocity and acceleration (``offsets``: of ``dv``, ``da``, ``v``, ``a``), ``div v``,
+    and with ``rule`` the affine parts of ``v`` and ``a`` (0: APIC's ``B D^-1``, 1: the grid gradient; -1: none)."""
+    dv, da, v, a = offsets[0], offsets[1], offsets[2], offsets[3]
+    components = np.array([v, v + 1, a, a + 1])
+    b, C = np.empty((4, 2)), np.empty((4, 2))
+    for p in range(lfun.shape[0]):
+        phi_p, lfun_p, at = phi[p], lfun[p], values[p]
+        _particle_values(phi_p, lfun_p, grid_values, at)
+        for c in range(2):
+            velocity[p, c] = _flip(velocity[p, c], at[dv + c], at[v + c], share)
+            acceleration[p, c] = _flip(acceleration[p, c], at[da + c], at[a + c], share)
+        divergence[p] = (_particle_derivative(phi_p, lfun_p, grid_values, 0, v) / h
+                         + _particle_derivative(phi_p, lfun_p, grid_values, 1, v + 1) / h)
+        if rule == 0:
+            d00, d01, d11 = _second_moments(phi_p, lfun_p, nodes, x[p])
+            for k in range(4):
+                b[k, 0], b[k, 1] = _first_moment(phi_p, lfun_p, nodes, x[p], grid_values, components[k])
+            _times_inverse_moments(b, d00, d01, d11, floor, C)
+        elif rule == 1:
+            for k in range(4):
+                for d in range(2):
+                    C[k, d] = _particle_derivative(phi_p, lfun_p, grid_values, d, components[k]) / h
+        if rule >= 0:
+            affine_velocity[p] = C[:2]
+            affine_acceleration[p] = C[2:]

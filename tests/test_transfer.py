@@ -260,8 +260,8 @@ def test_a_step_of_the_particle_state_keeps_an_affine_field(comm, kind):
     g2p = fempm.GridFunction(fempm.Space(basis, {"dv": 2, "da": 2, "v": 2, "a": 2}))
     g2p.field("v")[:], g2p.field("a")[:] = p2g.field("mv") / m, p2g.field("ma") / m
     before = particles["velocity"].copy()
-    jets = transfer.grid_jets_to_particles(g2p, particles, order=1)
-    transfer.update_state(g2p, jets, particles, kind, 0.0 if kind == "flip" else 1.0)
+    transfer.update_state(g2p, particles, kind, 0.0 if kind == "flip" else 1.0, np.empty((len(particles), 8)),
+                          np.empty(len(particles)))
     np.testing.assert_allclose(particles["velocity"], before, atol=1e-12)
     if kind != "flip":
         np.testing.assert_allclose(particles["affine_acceleration"], np.broadcast_to(A, (len(particles), 2, 2)),
@@ -287,5 +287,5 @@ def test_the_particle_state_of_a_rank_without_particles(comm, kind):
                                                                                        "count": 1})))
     assert not p2g.values.any()
     g2p = fempm.GridFunction(fempm.Space(basis, {"dv": 2, "da": 2, "v": 2, "a": 2}))
-    transfer.update_state(g2p, transfer.grid_jets_to_particles(g2p, particles, order=1), particles, kind, 0.1)
+    transfer.update_state(g2p, particles, kind, 0.1, np.empty((0, 8)), np.empty(0))
     assert particles["velocity"].shape == (0, 2)
