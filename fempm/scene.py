@@ -35,6 +35,7 @@ from fempm.errors import InputError
 from fempm.expressions import Expression
 from fempm.formsfile import forms_path, shipped_forms
 from fempm.grid import cell_counts, cell_shares, last_widths, square_cell_size
+from fempm.linear import LARGE_SYSTEM
 from fempm.options import FLUID_REGION_CELLS, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
 from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, finite, folder_name, forms_name,
@@ -578,7 +579,9 @@ def estimate(scene: Scene, ranks: int = 1) -> Estimate:
     water = min(water, functions)
     region = min(region, functions) if cells > FLUID_REGION_CELLS else functions
     free = bs * water
-    factor = _PER_FACTOR * free * math.log2(max(free, 2.0)) if scene.solver.linear == "direct" else 0.0
+    # LU factors: direct on several ranks, or on one up to LARGE_SYSTEM (above it a multigrid cycle)
+    factored = scene.solver.linear == "direct" and (ranks > 1 or free <= LARGE_SYSTEM)
+    factor = _PER_FACTOR * free * math.log2(max(free, 2.0)) if factored else 0.0
     copies = ranks if scene.solver.linear == "direct" else 1  # on several ranks each factors a copy
 
     def total(rows):

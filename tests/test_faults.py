@@ -169,20 +169,24 @@ def test_the_memory_estimate_is_close_to_the_measured_peak(tmp_path):
     within 0.91 to 1.23 of the README's scaling table up to 1e6 particles on 2 ranks. The
     small run is mostly the imports, whose size depends on the machine (0.26 GB here, 0.32 to
     0.36 GB on the CI machine): the small run is not bounded on its own, the growth between
-    the two sizes and the larger run are."""
+    the two sizes and the larger run with the small run's excess over its estimate taken off are."""
     _peak_memory(_refined(40), tmp_path)  # compiles what the caches lack: its memory is not the run's
     measured = {cells: _peak_memory(_refined(cells), tmp_path) for cells in (40, 160)}
     estimated = {cells: estimate(scene_from_text(_refined(cells), "refined.toml")).memory_gb for cells in (40, 160)}
-    assert 0.85 < measured[160] / estimated[160] < 1.3, (measured, estimated)  # measured 0.989 to 1.023; CI 1.175
+    imports = measured[40] - estimated[40]  # this machine's, over the fit's
+    # measured 0.996 (1.090 without the correction; before the multigrid cycle above 4,000 free dofs
+    # 0.989 to 1.023 without it, CI 1.175)
+    assert 0.85 < (measured[160] - imports) / estimated[160] < 1.15, (measured, estimated)
     growth = (measured[160] - measured[40]) / (estimated[160] - estimated[40])
-    assert 0.75 < growth < 1.15, (measured, estimated)  # measured 0.984; CI 0.86
+    assert 0.75 < growth < 1.15, (measured, estimated)  # measured 0.987 (before the multigrid cycle 0.984; CI 0.86)
 
 
 def test_a_scene_beyond_the_memory_limit_is_refused_before_allocating(tmp_path):
     (tmp_path / "scene.toml").write_text(DAMBREAK.replace("cells = [40, 40]", "cells = [20000, 20000]"))
     start = time.monotonic()
     status, out, err = fempm("check", tmp_path / "scene.toml")
-    assert status == 2 and re.search(r"domain.cells = \[20000, 20000\]: the run would need about 2.\d+e\+03 GB of "
+    # 1.19e3 GB (2.4e3 GB while one rank's exact solve factored S at any size)
+    assert status == 2 and re.search(r"domain.cells = \[20000, 20000\]: the run would need about 1.\d+e\+03 GB of "
                                      r"memory", one_line(err))
     assert time.monotonic() - start < 120  # refused from arithmetic (on main it grew past 8.6 GB in ~35 s)
 

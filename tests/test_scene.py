@@ -129,7 +129,7 @@ BAD_SCENES = [
     ("PETSc drawing", _edit("pic_rate = 100.0", 'pic_rate = 100.0\npetsc = { ksp_monitor = "draw" }'),
      [], r"solver.petsc.ksp_monitor = 'draw': it draws in a window"),
     ("grid too large for the memory", _edit("cells = [40, 40]", "cells = [20000, 20000]"), [],
-     r"domain.cells = \[20000, 20000\]: the run would need about 2.\d+e\+03 GB of memory \(4e\+08 cells, .*\), more "
+     r"domain.cells = \[20000, 20000\]: the run would need about 1.\d+e\+03 GB of memory \(4e\+08 cells, .*\), more "
      r"than the .* GB available; use fewer cells or particles, or set the limit with --max-memory GB"),
     ("particles too many for the memory", _edit("particles_per_cell = 4 ", "particles_per_cell = 250000 "), [],
      r"bodies\[0\].particles_per_cell = 250000: the run would need about 107 GB of memory"),
