@@ -36,6 +36,7 @@ __all__ = [
     "assemble_vector_lumped",
     "jets_at_particles",
     "pack_jets",
+    "particle_jets",
     "side_by_side",
 ]
 
@@ -458,16 +459,17 @@ def pack_jets(phi, lfun, values, index, out):
     bs = values.shape[1]
     jets = np.empty((nq, bs))
     for p in range(n):
-        _particle_jets(phi[p], lfun[p], values, jets)
+        particle_jets(phi[p], lfun[p], values, jets)
         for a in range(nq):
             for c in range(bs):
                 out[p, index[c, a]] = jets[a, c]
 
 
-@numba.njit(cache=True)
-def _particle_jets(phi_p, lfun_p, values, jets):
+@numba.njit(cache=True, inline="always")
+def particle_jets(phi_p, lfun_p, values, jets):
     """``jets[a, c] = sum_l phi_p[a, l] * values[lfun_p[l], c]`` for ``a < jets.shape[0]``, each sum
-    taken over ``l`` in order from 0.0 (the functions outermost: the components run contiguous)."""
+    taken over ``l`` in order from 0.0 (the functions outermost: the components run contiguous): one
+    particle's jets of a grid function, for kernels that go over the particles (inlined in them)."""
     nq, bs = jets.shape
     jets[:] = 0.0
     for l in range(lfun_p.shape[0]):
@@ -503,4 +505,4 @@ def jets_at_particles(phi, lfun, values, out):
     first ``out.shape[1]`` of ``phi``'s (a tabulation of a higher order serves). A particle's
     coefficients are gathered once for all its jets."""
     for p in range(lfun.shape[0]):
-        _particle_jets(phi[p], lfun[p], values, out[p])
+        particle_jets(phi[p], lfun[p], values, out[p])

@@ -31,7 +31,7 @@ from mpi4py import MPI
 from numba.core import types
 from numba.extending import intrinsic
 
-from fempm.assembly import jets_at_particles
+from fempm.assembly import jets_at_particles, particle_jets
 from fempm.bases import jet_indices
 from fempm.options import TRANSFERS
 from fempm.space import GridFunction, Space
@@ -498,18 +498,6 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
 
 
 @numba.njit(cache=True, inline="always")
-def _particle_values(phi_p, lfun_p, grid_values, out):
-    """``out[c] = sum_l phi_p[0, l] grid_values[lfun_p[l], c]``: one particle's values of a grid function,
-    each sum over ``l`` in order from 0.0 (the functions outermost: the components run contiguous)."""
-    for c in range(out.shape[0]):
-        out[c] = 0.0
-    for l in range(lfun_p.shape[0]):
-        f, w = lfun_p[l], phi_p[0, l]
-        for c in range(out.shape[0]):
-            out[c] += w * grid_values[f, c]
-
-
-@numba.njit(cache=True, inline="always")
 def _particle_derivative(phi_p, lfun_p, grid_values, d, c):
     """``sum_l phi_p[1 + d, l] grid_values[lfun_p[l], c]``: one particle's derivative along reference
     coordinate ``d`` of component ``c`` of a grid function, the sum over ``l`` in order from 0.0."""
@@ -530,7 +518,7 @@ def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rule, h, floor,
     b, C = np.empty((4, 2)), np.empty((4, 2))
     for p in range(lfun.shape[0]):
         phi_p, lfun_p, at = phi[p], lfun[p], values[p]
-        _particle_values(phi_p, lfun_p, grid_values, at)
+        particle_jets(phi_p, lfun_p, grid_values, values[p:p + 1])  # the values: the first jet
         for c in range(2):
             velocity[p, c] = _flip(velocity[p, c], at[dv + c], at[v + c], share)
             acceleration[p, c] = _flip(acceleration[p, c], at[da + c], at[a + c], share)
