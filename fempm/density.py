@@ -1,15 +1,17 @@
-"""The density error the volume correction removes (method.md eq. 3), aware of the free surface.
+"""Where the water is deep: the volume correction's switch between both signs and crowding only.
 
 ``phi_i = rho~_i / rho`` (the smoothed density of eq. 2 over the density: the share of function
 ``i``'s support the particles' volumes cover) measures crowding (``phi_i > 1``) and thinning
 (``phi_i < 1``) of the particles, but only where the support lies inside the water: where it
 reaches into air ``phi_i < 1`` by construction, and a correction of both signs contracts every
 free surface (method.md's form squeezed a column at rest), while a correction of crowding only
-(``max(phi_i - 1, 0)``) never undoes thinning, so a free surface that moves swells. So::
-
-    e_i = phi_i - 1             if every cell of i's support is deep (phi >= DEEP at its centre:
-                                filled, some way below any free surface)
-    e_i = max(phi_i - 1, 0)     otherwise (the band along a free surface: crowding only)
+never undoes thinning, so a free surface that moves swells. So a function is *deep* when every
+cell of its support is (``phi >= DEEP`` at the cell's centre: filled, some way below any free
+surface), and the grid function ``deep`` is 1 there, 0 elsewhere. The surface-aware continuity
+(``forms/incompressible.py``) corrects both signs at a particle all of whose functions are deep
+(``deep`` interpolates to 1 there) and crowding only at the others, the band along a free surface.
+The error is taken at the particles, as the crowding-only correction's is: a per-function error
+interpolated to the particles rippled the dam break's upper wall gauge more.
 """
 
 from __future__ import annotations
@@ -18,14 +20,14 @@ import numpy as np
 
 from fempm.space import GridFunction, Space
 
-__all__ = ["DEEP", "DensityError"]
+__all__ = ["DEEP", "DeepWater"]
 
 #: a cell is deep inside the material when the wet fraction at its centre reaches this
 DEEP = 0.8
 
 
-class DensityError:
-    """``e_i`` per basis function (see the module) from ``phi_i`` on a scalar space's local functions.
+class DeepWater:
+    """The ``deep`` mask per basis function (see the module) from ``phi_i`` on a scalar space's local functions.
 
     Args:
         space: a scalar space of the basis.
@@ -50,6 +52,5 @@ class DensityError:
         return shallow.values[:, 0] == 0
 
     def __call__(self, phi: np.ndarray) -> np.ndarray:
-        """``e_i`` on the local functions (collective)."""
-        error = phi - 1.0
-        return np.where(self.interior(phi), error, np.maximum(error, 0.0))
+        """``deep`` on the local functions: 1.0 on the interior ones, else 0.0 (collective)."""
+        return self.interior(phi).astype(np.float64)

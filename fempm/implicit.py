@@ -21,7 +21,7 @@ from mpi4py import MPI
 
 from fempm import diagnostics, transfer
 from fempm.bases import Basis
-from fempm.density import DensityError
+from fempm.density import DeepWater
 from fempm.options import Controls, Physics, Scheme
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
@@ -120,7 +120,7 @@ class ImplicitSolver(Stepper):
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
-        self._density_error = DensityError(s.scalar_space)
+        self._deep_water = DeepWater(s.scalar_space)
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
@@ -187,7 +187,7 @@ class ImplicitSolver(Stepper):
         rho = s.fields["smoothed_density"].values
         rho[:] = transfer.smoothed_density(p2g.field("m"), self._integrals[:, None])
         if s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
-            s.fields["density_error"].values[:, 0] = self._density_error(rho[:, 0] / self._reference_density)
+            s.fields["deep"].values[:, 0] = self._deep_water(rho[:, 0] / self._reference_density)
         keep = np.empty((s.scalar_space.numbering.num_owned, s.space.bs), dtype=np.bool_)
         _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
                     self._reference_density, c.min_support_fraction, c.min_pressure_support,

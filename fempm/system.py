@@ -97,7 +97,7 @@ class GridSystem:
             "grid_velocity": GridFunction(self.vector_space, "grid_velocity"),
             "grid_acceleration": GridFunction(self.vector_space, "grid_acceleration"),
             "smoothed_density": GridFunction(self.scalar_space, "smoothed_density"),
-            "density_error": GridFunction(self.scalar_space, "density_error"),  # fempm.density.DensityError
+            "deep": GridFunction(self.scalar_space, "deep"),  # fempm.density.DeepWater
         }
         self.velocity = GridFunction(self.vector_space, "velocity")
         self.pressure = GridFunction(self.scalar_space, "pressure")

@@ -17,7 +17,7 @@ What a form may use (see ``fempm.quadrature.Symbols``):
 * grid functions: ``U`` (the unknowns), ``grid_velocity`` v_n and
   ``grid_acceleration`` a_n (the particle values projected to the grid,
   ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2),
-  ``density_error`` (what the volume correction removes, see :func:`continuity`);
+  ``deep`` (1 where a function's support lies deep in the water, else 0; see :func:`continuity`);
 * constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``density`` (the
   fluid's reference density), ``gravity``
   (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``surface_aware`` (1 or 0,
@@ -189,6 +189,8 @@ def momentum(s):
 
 #: crowding the volume correction leaves alone, a share of the density (see continuity)
 CROWDING_TOLERANCE = 2.0e-3
+#: ``deep`` at a particle all of whose functions are deep: 1 to round-off (see continuity)
+WHOLLY_DEEP = 1 - 1e-9
 
 
 def continuity(s):
@@ -208,10 +210,11 @@ def continuity(s):
     density by that much, and an expansion asked for every such stir, never taken back,
     swelled a column at rest.
 
-    With ``surface_aware`` = 1 instead ``int q (div v_{n+1} - alpha e / dt) dx``, ``e`` the
-    grid function ``density_error`` (``fempm.density.DensityError``): ``rho~ / rho - 1``,
-    both signs, where a function's support lies deep in the water, and crowding only in
-    the band along a free surface.
+    With ``surface_aware`` = 1 instead ``int q (div v_{n+1} - alpha e / dt) dx`` with, at a
+    particle whose functions all lie deep in the water (the grid function ``deep``,
+    ``fempm.density.DeepWater``, interpolates to 1 there), both signs ``e = rho~ / rho - 1``, and
+    crowding only ``e = max(rho~ / rho - 1 - CROWDING_TOLERANCE, 0)`` in the band along a free
+    surface: thinning is undone where it is not the surface's own.
 
     The divergence is the end-of-step one, ``J* div_x`` (see :func:`end_map`).
     """
@@ -224,7 +227,10 @@ def continuity(s):
     if not switched_on(alpha):
         return q * expansion * s.dx
     if switched_on(s.constant("surface_aware")):
-        return q * (expansion - alpha * s.grid("density_error") / dt) * s.dx
+        excess = s.grid("smoothed_density") / rho - 1
+        error = ufl.conditional(ufl.ge(s.grid("deep"), WHOLLY_DEEP), excess,
+                                ufl.max_value(excess - CROWDING_TOLERANCE, 0))
+        return q * (expansion - alpha * error / dt) * s.dx
     crowding = ufl.max_value(s.grid("smoothed_density") - rho * (1 + CROWDING_TOLERANCE), 0)
     return q * (expansion - alpha / rho * crowding / dt) * s.dx
 
