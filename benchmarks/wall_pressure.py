@@ -45,7 +45,7 @@ MAIN_PROBE = "right_y0.005"
 TOP_PROBE = "right_y0.0584"  #: the highest right-wall probe, where the run-up arrives last
 #: the runs of the page: key, label, scene changes
 STUDY = [
-    ("default", "default (4 × 4 per cell, adaptive step: Courant 0.6, dt ≤ 1e-2; α 0.1, affine-FLIP)", {}),
+    ("default", "default (4 × 4 per cell, adaptive step: Courant 0.6, dt ≤ 1e-2; α 0.1 surface-aware, affine-FLIP)", {}),
     ("seed_ppc", "2 × 2 per cell (the seed's), Courant 0.5: the scene until now", {**dambreak.SEED_PARTICLES, "time.courant": 0.5}),
     ("ppc4", "2 × 2 per cell", dambreak.SEED_PARTICLES),
     ("ppc9", "3 × 3 per cell", {"bodies.0.particles_per_cell": 9}),
@@ -59,7 +59,7 @@ STUDY = [
     ("adaptive_fast", "adaptive step, Courant 1", {"time.courant": 1.0}),
     ("pic", "the seed's FLIP with 10 % PIC per step", {"solver.transfer": "flip", "solver.pic_blend": 0.1,
                                                        "solver.pic_rate": 0.0}),
-    ("surface_aware", "surface-aware volume correction", {"solver.surface_aware": True}),
+    ("crowding_only", "volume correction on crowding only (the scene until now)", {"solver.surface_aware": False}),
     ("no_pspg", "no PSPG", {"solver.pspg": False}),
 ]
 
