@@ -113,23 +113,24 @@ def main(argv=None) -> int:
     parser.add_argument("--cases", nargs="+", choices=list(CASES), default=list(CASES))
     parser.add_argument("--alpha", type=float, default=Scheme.alpha, help="volume correction (default 0.1)")
     parser.add_argument("--surface-aware", action="store_true", help="Scheme.surface_aware (fempm.density)")
+    parser.add_argument("--shifting", type=float, default=Scheme.shifting, help="Scheme.shifting (fempm.shifting)")
     parser.add_argument("--column-time", type=float, default=10.0)
     parser.add_argument("--slosh-time", type=float, default=5.0)
     parser.add_argument("--per-cell", type=int, default=2, help="N x N particles per cell (default 2)")
     parser.add_argument("--out", help="write the results as JSON here")
     args = parser.parse_args(argv)
-    scheme = Scheme(alpha=args.alpha, surface_aware=args.surface_aware)
+    scheme = Scheme(alpha=args.alpha, surface_aware=args.surface_aware, shifting=args.shifting)
     results = [run_case(name, scheme, args.column_time if name == "column" else args.slosh_time,
                         per_cell=args.per_cell) for name in args.cases]
     if MPI.COMM_WORLD.rank == 0:
         for r in results:
-            print(f"{r['case']:7s} alpha {args.alpha:g}{' surface-aware' if args.surface_aware else ''}, "
+            print(f"{r['case']:7s} alpha {args.alpha:g}{' surface-aware' if args.surface_aware else ''}{f' shifting {args.shifting:g}' if args.shifting else ''}, "
                   f"{args.per_cell} x {args.per_cell} per cell: {r['status']}, t = {r['time']:.2f} s, volume change "
                   f"{r['change']:+.3%}, drift {r['drift_per_s']:+.3%}/s, max speed {r['max_speed_end']:.2e} m/s, "
                   f"tilt {1000 * r['tilt_first_s']:.1f} -> {1000 * r['tilt_last_s']:.1f} mm")
         if args.out:
             with open(args.out, "w") as f:
-                json.dump({"alpha": args.alpha, "surface_aware": args.surface_aware, "results": results}, f, indent=2)
+                json.dump({"alpha": args.alpha, "surface_aware": args.surface_aware, "shifting": args.shifting, "results": results}, f, indent=2)
     return 0
 
 

@@ -19,10 +19,10 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
-from fempm import diagnostics, transfer
+from fempm import diagnostics, shifting, transfer
 from fempm.bases import Basis
 from fempm.density import DeepWater
-from fempm.options import Controls, Physics, Scheme
+from fempm.options import SIDES, Controls, Physics, Scheme
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.region import MatrixRegion
@@ -124,6 +124,9 @@ class ImplicitSolver(Stepper):
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
+        walls = physics.wall_conditions()
+        self._mirrors = [walls[side] in ("slip", "no-slip") for side in SIDES]  # fempm.shifting
+        self._spacing = shifting.spacing(particles) if scheme.shifting > 0 else 0.0
         self._values, self._divergence = np.empty((0, self._g2p.space.bs)), np.empty(0)  # G2P's (_particle_room)
 
     # -- one step (Stepper.step chooses dt, retries, moves the clock) ---------------------------
@@ -217,6 +220,9 @@ class ImplicitSolver(Stepper):
         x = p.x
         _move(values, g.space.field_offset("du"), g.space.field_offset("p"), x, p["pressure"])
         p.fields["x"] = s.walls.keep_inside(x)
+        if sc.shifting > 0:  # the particles spread evenly again (fempm.shifting)
+            shifting.shift(p, s.dt, sc.shifting, self._mirrors, self._spacing)
+            p.fields["x"] = s.walls.keep_inside(p.x)
         self.max_divergence = self.grid.comm.allreduce(float(np.abs(divergence).max(initial=0.0)), op=MPI.MAX)
         self.check_pressure(p["pressure"], s.dt)
         if self.check_energy:

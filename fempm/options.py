@@ -104,6 +104,9 @@ class Scheme:
             the seed's step a whole share per step fed the energy check).
         surface_aware: the volume correction's density error of both signs deep in the water,
             crowding only along a free surface (:mod:`fempm.density`); False: crowding only, everywhere.
+        shifting: the strength ``A`` of the particle shifting after each step (:mod:`fempm.shifting`:
+            the particles deep in the water moved down the gradient of their concentration, by
+            ``A`` times the distance they moved in the step times their disorder); 0: none.
         pspg: PSPG stabilisation (method.md: without it the run diverges).
         transfer: how velocity and acceleration go between particles and grid, one of
             :data:`TRANSFERS` (:mod:`fempm.transfer`): ``flip`` (FLIP increments blended with PIC,
@@ -135,6 +138,7 @@ class Scheme:
     alpha: float = 0.1
     alpha_rate: float = 100.0
     surface_aware: bool = False
+    shifting: float = 0.0
     pspg: bool = True
     transfer: str = "affine-flip"
     pic_blend: float = 0.0
@@ -154,6 +158,8 @@ class Scheme:
             raise InputError(f"alpha (volume correction) must be in [0, 1], got {self.alpha}")
         if not (np.isfinite(self.alpha_rate) and self.alpha_rate > 0):
             raise InputError(f"alpha_rate (volume correction) must be a finite number > 0 (1/s), got {self.alpha_rate}")
+        if not (np.isfinite(self.shifting) and self.shifting >= 0):
+            raise InputError(f"shifting must be a finite number >= 0, got {self.shifting}")
         if not 0 <= self.pic_blend <= 1:
             raise InputError(f"pic_blend must be in [0, 1], got {self.pic_blend}")
         if self.transfer not in TRANSFERS:

@@ -177,6 +177,7 @@ class Solver:
     volume_correction_rate: float = key(positive, Scheme.alpha_rate, unit="1/s")
     transfer: str = key(choice(*TRANSFERS), Scheme.transfer)
     surface_aware: bool = key(boolean, Scheme.surface_aware)
+    shifting: float = key(non_negative, Scheme.shifting)
     pic_blend: float = key(fraction, Scheme.pic_blend)
     pic_rate: float = key(non_negative, Scheme.pic_rate, unit="1/s")
     newmark_beta: float = key(in_range(0, 0.5), Scheme.beta)

@@ -45,14 +45,14 @@ CENTRE = np.array([0.5, 0.5])
 
 def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
                comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha, per_cell: int = 2,
-               pspg: bool = Scheme.pspg) -> ImplicitSolver:
+               pspg: bool = Scheme.pspg, shifting: float = Scheme.shifting) -> ImplicitSolver:
     """The unit slip box filled with ``per_cell`` x ``per_cell`` particles per cell at the given
     velocity and acceleration (functions of the positions returning ``(values (n, 2), gradients
-    (n, 2, 2))``), with the volume correction ``alpha`` and PSPG on or off."""
+    (n, 2, 2))``), with the volume correction ``alpha``, PSPG on or off and particle ``shifting``."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
     water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=per_cell, density=RHO)
-    scheme = Scheme(dt=dt, alpha=alpha, pspg=pspg, initial_acceleration="given", **VARIANTS[variant])
+    scheme = Scheme(dt=dt, alpha=alpha, pspg=pspg, shifting=shifting, initial_acceleration="given", **VARIANTS[variant])
     transfer.add_affine_fields(water, scheme.transfer)
     for name, field in (("velocity", velocity), ("acceleration", acceleration)):
         value, grad = field(water.x)

@@ -1,0 +1,198 @@
+"""Particle shifting: keep the particles, the step's quadrature points, evenly spread.
+
+The particles follow the flow, and a shearing or straining flow gathers them along some lines and
+leaves gaps elsewhere, within cells, where the grid's smoothed density does not see it. The
+particle quadrature of the pressure terms degrades with that disorder, and PSPG turns what it
+misses into divergence: a vortex loses energy at a rate that grows with the distance the flow has
+carried its particles (README, verification). After each step every particle deep in the water is
+moved a little down the gradient of the particles' own concentration, as in SPH's particle shifting
+(Lind et al. 2012; Sun et al. 2017, the delta+-SPH form)::
+
+    dr_i = -A (|v_i| dt) (2 h_k) sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij,   |dr_i| <= dr_max
+
+with ``W`` the Wendland C2 kernel of smoothing length ``h_k = 1.3 dp`` (``dp``: the particles'
+spacing, ``sqrt(V)``), ``R = 0.2`` (the term that keeps pairs from clumping), and ``A`` the
+strength. The shift scales with the distance the particle moved in the step, so that particles
+at rest stay and the correction per unit time does not grow as the step falls. A particle keeps
+its velocity field: its values are moved along its affine parts, ``v_i += C_i dr_i``.
+
+The slip walls of the grid's sides are mirrors (the neighbours' images across them count), so a
+particle next to a wall sees a full neighbourhood. Only particles whose support is full (the
+concentration at least ``FULL`` of a lattice's) move: along a free surface a shift down the
+concentration gradient would push the water outwards.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["shift"]
+
+SMOOTHING = 1.3  #: the kernel's smoothing length over the particle spacing
+TENSILE = 0.2  #: R: the anti-clumping term's weight
+FULL = 0.95  #: a particle moves where its concentration is at least this share of a lattice's
+MAX_SHIFT = 0.2  #: the largest shift per step, in particle spacings
+
+
+@numba.njit(cache=True, inline="always")
+def _wendland(q, norm):
+    """Wendland C2 kernel and its radial derivative (over h_k) at ``q = r / h_k``."""
+    if q >= 2.0:
+        return 0.0, 0.0
+    t = 1.0 - 0.5 * q
+    t3 = t * t * t
+    return norm * t3 * t * (2.0 * q + 1.0), -5.0 * norm * q * t3
+
+
+@numba.njit(cache=True)
+def _concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, conc, grad):
+    """``conc_i = sum_j V_j W_ij`` and ``grad_i = sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij`` for the
+    first ``n_own`` points, over all points within ``2 h_k`` and their images across the mirrored
+    sides (left, right, bottom, top)."""
+    n = x.shape[0]
+    support = 2.0 * hk
+    norm = 7.0 / (4.0 * np.pi * hk * hk)
+    nbx = max(int((upper[0] - lower[0]) / support) + 1, 1)
+    nby = max(int((upper[1] - lower[1]) / support) + 1, 1)
+    head = -np.ones(nbx * nby, dtype=np.int64)
+    nxt = np.empty(n, dtype=np.int64)
+    bx = np.empty(n, dtype=np.int64)
+    by = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        bx[i] = min(max(int((x[i, 0] - lower[0]) / support), 0), nbx - 1)
+        by[i] = min(max(int((x[i, 1] - lower[1]) / support), 0), nby - 1)
+        b = bx[i] + nbx * by[i]
+        nxt[i] = head[b]
+        head[b] = i
+    for i in range(n_own):
+        xi, yi = x[i, 0], x[i, 1]
+        # the mirrors within this particle's support: a side in x and one in y at most
+        mx = 0.0
+        use_x = False
+        if mirror[0] and xi - lower[0] < support:
+            mx, use_x = lower[0], True
+        elif mirror[1] and upper[0] - xi < support:
+            mx, use_x = upper[0], True
+        my = 0.0
+        use_y = False
+        if mirror[2] and yi - lower[1] < support:
+            my, use_y = lower[1], True
+        elif mirror[3] and upper[1] - yi < support:
+            my, use_y = upper[1], True
+        c = 0.0
+        gx = 0.0
+        gy = 0.0
+        for dby in range(-1, 2):
+            b1 = by[i] + dby
+            if b1 < 0 or b1 >= nby:
+                continue
+            for dbx in range(-1, 2):
+                b0 = bx[i] + dbx
+                if b0 < 0 or b0 >= nbx:
+                    continue
+                j = head[b0 + nbx * b1]
+                while j >= 0:
+                    for image in range(4):
+                        if image == 1 and not use_x or image == 2 and not use_y or image == 3 and not (use_x and use_y):
+                            continue
+                        xj = 2.0 * mx - x[j, 0] if image == 1 or image == 3 else x[j, 0]
+                        yj = 2.0 * my - x[j, 1] if image >= 2 else x[j, 1]
+                        dx, dy = xi - xj, yi - yj
+                        r = np.sqrt(dx * dx + dy * dy)
+                        w, dw = _wendland(r / hk, norm)
+                        if w == 0.0:
+                            continue
+                        c += volume[j] * w
+                        if r > 0.0:
+                            ratio = w / w_dp
+                            f = volume[j] * (1.0 + TENSILE * ratio * ratio * ratio * ratio) * dw / (hk * r)
+                            gx += f * dx
+                            gy += f * dy
+                    j = nxt[j]
+        conc[i] = c
+        grad[i, 0] = gx
+        grad[i, 1] = gy
+
+
+@numba.njit(cache=True)
+def _apply(x, v, affine_v, a, affine_a, grad, conc, full, dt, coefficient, cap, shifts):
+    """Move the particles with a full support by ``-coefficient |v| dt grad`` (capped at ``cap``), their
+    values along their affine parts; returns the number moved."""
+    moved = 0
+    for i in range(x.shape[0]):
+        if conc[i] < full:
+            continue
+        s = coefficient * np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) * dt
+        dx, dy = -s * grad[i, 0], -s * grad[i, 1]
+        length = np.sqrt(dx * dx + dy * dy)
+        if length > cap:
+            dx, dy = dx * cap / length, dy * cap / length
+        shifts[i, 0], shifts[i, 1] = dx, dy
+        x[i, 0] += dx
+        x[i, 1] += dy
+        if affine_v.shape[0]:
+            for c in range(2):
+                v[i, c] += affine_v[i, c, 0] * dx + affine_v[i, c, 1] * dy
+                a[i, c] += affine_a[i, c, 0] * dx + affine_a[i, c, 1] * dy
+        moved += 1
+    return moved
+
+
+def lattice_concentration(hk: float, dp: float) -> float:
+    """``sum_j V W`` at a point of an infinite square lattice of spacing ``dp``."""
+    k = np.arange(-4, 5) * dp
+    q = np.hypot(*np.meshgrid(k, k)).ravel() / hk
+    t = np.clip(1.0 - 0.5 * q, 0.0, None)
+    return float(dp * dp * 7.0 / (4.0 * np.pi * hk * hk) * np.sum(t**4 * (2 * q + 1)))
+
+
+def _with_neighbours(x: np.ndarray, volume: np.ndarray, reach: float, comm) -> tuple[np.ndarray, np.ndarray]:
+    """This rank's particles followed by the other ranks' within ``reach`` of their bounding box."""
+    if comm.size == 1:
+        return x, volume
+    low = x.min(axis=0, initial=np.inf) if len(x) else np.full(2, np.inf)
+    high = x.max(axis=0, initial=-np.inf) if len(x) else np.full(2, -np.inf)
+    boxes = comm.allgather((low - reach, high + reach))
+    outgoing = []
+    for rank, (lo, hi) in enumerate(boxes):
+        near = np.all((x >= lo) & (x <= hi), axis=1) if rank != comm.rank else np.zeros(len(x), dtype=bool)
+        outgoing.append((x[near], volume[near]))
+    incoming = comm.alltoall(outgoing)
+    xs = [x] + [xi for rank, (xi, _) in enumerate(incoming) if rank != comm.rank]
+    vs = [volume] + [vi for rank, (_, vi) in enumerate(incoming) if rank != comm.rank]
+    return np.concatenate(xs), np.concatenate(vs)
+
+
+def spacing(particles) -> float:
+    """The particles' spacing ``dp``: the square root of their median volume on all ranks."""
+    volume = particles["volume"]
+    comm = particles.grid.comm
+    values = comm.allgather(float(np.median(volume)) if len(volume) else None)
+    return float(np.sqrt(np.median([v for v in values if v is not None])))
+
+
+def shift(particles, dt: float, strength: float, mirror, dp: float) -> np.ndarray:
+    """Shift the particles (see the module) after a step of size ``dt`` (collective): ``strength`` is
+    ``A``, ``mirror`` which of the sides (left, right, bottom, top) reflect, ``dp`` the spacing
+    (:func:`spacing`). Returns the shifts ``(n, 2)``."""
+    grid, x = particles.grid, particles.x
+    n = len(x)
+    hk = SMOOTHING * dp
+    near, near_volume = _with_neighbours(x, particles["volume"], 2.0 * hk, grid.comm)
+    shifts = np.zeros((n, 2))
+    if n == 0:
+        return shifts
+    norm = 7.0 / (4.0 * np.pi * hk * hk)
+    t = 1.0 - 0.5 / SMOOTHING
+    w_dp = norm * t**4 * (2.0 / SMOOTHING + 1.0)
+    conc, grad = np.empty(n), np.empty((n, 2))
+    _concentration_gradients(near, near_volume, n, grid.lower, grid.upper, np.asarray(mirror, dtype=np.bool_),
+                             hk, w_dp, conc, grad)
+    v = particles["velocity"]
+    affine = "affine_velocity" in particles.fields
+    empty = np.zeros((0, 2, 2))
+    _apply(x, v, particles["affine_velocity"] if affine else empty, particles["acceleration"],
+           particles["affine_acceleration"] if affine else empty, grad, conc,
+           FULL * lattice_concentration(hk, dp), dt, strength * 2.0 * hk, MAX_SHIFT * dp, shifts)
+    return shifts
