@@ -116,11 +116,11 @@ def _concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, c
 
 
 @numba.njit(cache=True)
-def _apply(x, v, affine_v, a, affine_a, grad, conc, full, dt, coefficient, cap, shifts):
-    """Move the particles with a full support by ``-coefficient |v| dt grad`` (capped at ``cap``), their
-    values along their affine parts; returns the number moved."""
-    moved = 0
-    for i in range(x.shape[0]):
+def _shifts(v, grad, conc, full, dt, coefficient, cap, mass, shifts):
+    """``-coefficient |v| dt grad`` (capped at ``cap``) at the particles with a full support, 0 elsewhere;
+    returns their mass and mass-weighted sum of shifts (mass, sx, sy)."""
+    total = np.zeros(3)
+    for i in range(v.shape[0]):
         if conc[i] < full:
             continue
         s = coefficient * np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) * dt
@@ -129,14 +129,26 @@ def _apply(x, v, affine_v, a, affine_a, grad, conc, full, dt, coefficient, cap, 
         if length > cap:
             dx, dy = dx * cap / length, dy * cap / length
         shifts[i, 0], shifts[i, 1] = dx, dy
+        total[0] += mass[i]
+        total[1] += mass[i] * dx
+        total[2] += mass[i] * dy
+    return total
+
+
+@numba.njit(cache=True)
+def _move(x, v, affine_v, a, affine_a, conc, full, mean, shifts):
+    """Less their mean, the shifts moved: positions, and values along the affine parts (if any)."""
+    for i in range(x.shape[0]):
+        if conc[i] < full:
+            continue
+        dx, dy = shifts[i, 0] - mean[0], shifts[i, 1] - mean[1]
+        shifts[i, 0], shifts[i, 1] = dx, dy
         x[i, 0] += dx
         x[i, 1] += dy
         if affine_v.shape[0]:
             for c in range(2):
                 v[i, c] += affine_v[i, c, 0] * dx + affine_v[i, c, 1] * dy
                 a[i, c] += affine_a[i, c, 0] * dx + affine_a[i, c, 1] * dy
-        moved += 1
-    return moved
 
 
 def lattice_concentration(hk: float, dp: float) -> float:
@@ -189,10 +201,12 @@ def shift(particles, dt: float, strength: float, mirror, dp: float) -> np.ndarra
     conc, grad = np.empty(n), np.empty((n, 2))
     _concentration_gradients(near, near_volume, n, grid.lower, grid.upper, np.asarray(mirror, dtype=np.bool_),
                              hk, w_dp, conc, grad)
-    v = particles["velocity"]
+    v, full = particles["velocity"], FULL * lattice_concentration(hk, dp)
+    total = grid.comm.allreduce(_shifts(v, grad, conc, full, dt, strength * 2.0 * hk, MAX_SHIFT * dp,
+                                        particles["mass"], shifts))
+    mean = total[1:] / total[0] if total[0] > 0 else np.zeros(2)
     affine = "affine_velocity" in particles.fields
     empty = np.zeros((0, 2, 2))
-    _apply(x, v, particles["affine_velocity"] if affine else empty, particles["acceleration"],
-           particles["affine_acceleration"] if affine else empty, grad, conc,
-           FULL * lattice_concentration(hk, dp), dt, strength * 2.0 * hk, MAX_SHIFT * dp, shifts)
+    _move(x, v, particles["affine_velocity"] if affine else empty, particles["acceleration"],
+          particles["affine_acceleration"] if affine else empty, conc, full, mean, shifts)
     return shifts
