@@ -2,24 +2,31 @@
 
 The particles follow the flow, and a shearing or straining flow gathers them along some lines and
 leaves gaps elsewhere, within cells, where the grid's smoothed density does not see it. The
-particle quadrature of the pressure terms degrades with that disorder, and PSPG turns what it
-misses into divergence: a vortex loses energy at a rate that grows with the distance the flow has
-carried its particles (README, verification). After each step every particle deep in the water is
-moved a little down the gradient of the particles' own concentration, as in SPH's particle shifting
-(Lind et al. 2012; Sun et al. 2017, the delta+-SPH form)::
+particle quadrature of the pressure terms degrades with that disorder: a vortex loses energy at a
+rate that grows with the distance the flow has carried its particles, and the quadrature's jumps as
+particles cross cells ripple the wall pressure (README, departures). After each step every particle
+whose neighbourhood is full moves a little down the gradient of the particles' own concentration,
+as in SPH's particle shifting (Lind et al. 2012; the anti-clumping term of Sun et al. 2017)::
 
-    dr_i = -A (|v_i| dt) (2 h_k) sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij,   |dr_i| <= dr_max
+    g_i  = sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij
+    dr_i = -min(A |v_i| dt / dp, RELAXATION) dp^2 g_i / STIFFNESS,   |dr_i| <= MAX_SHIFT dp
 
 with ``W`` the Wendland C2 kernel of smoothing length ``h_k = 1.3 dp`` (``dp``: the particles'
-spacing, ``sqrt(V)``), ``R = 0.2`` (the term that keeps pairs from clumping), and ``A`` the
-strength. The shift scales with the distance the particle moved in the step, so that particles
-at rest stay and the correction per unit time does not grow as the step falls. A particle keeps
-its velocity field: its values are moved along its affine parts, ``v_i += C_i dr_i``.
+spacing, ``sqrt(V)``) and ``R = 0.2``. ``g`` responds to a displacement ``d`` of a lattice by at most
+``STIFFNESS d / dp^2``, so a relaxation of 1 undoes that stiffest disorder in one step, and beyond 2
+the shifts would overshoot and grow: per step the relaxation is ``A`` times the spacings the particle
+moved, at most ``RELAXATION``. Per unit time it is ``A |v| / dp`` whatever the step (less where the
+cap holds, at large steps); particles at rest stay.
 
-The slip walls of the grid's sides are mirrors (the neighbours' images across them count), so a
-particle next to a wall sees a full neighbourhood. Only particles whose support is full (the
-concentration at least ``FULL`` of a lattice's) move: along a free surface a shift down the
-concentration gradient would push the water outwards.
+The shift moves the quadrature points, not the material: a particle keeps its values. (Moved along
+its affine parts, ``v += C dr``, particles next to a free surface, shifted step after step the same
+way, gathered speed until the energy check stopped the dam break at half the seed's step.) The
+moved particles' mean shift (mass-weighted, over all ranks) is taken off theirs, so that shifting
+moves no mass against gravity: it leaves the kinetic and the potential energy as they were. The
+slip walls of the grid's sides are mirrors (the neighbours' images across them count), so a particle
+next to a wall sees a full neighbourhood. Only particles whose concentration ``sum_j V_j W_ij`` is
+at least ``FULL`` of a lattice's move: along a free surface, where the kernel reaches into air, a
+shift down the concentration gradient would push the water outwards.
 """
 
 from __future__ import annotations
@@ -27,12 +34,17 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["shift"]
+__all__ = ["concentration_gradients", "kernel_at_spacing", "lattice_concentration", "shift", "spacing"]
 
 SMOOTHING = 1.3  #: the kernel's smoothing length over the particle spacing
 TENSILE = 0.2  #: R: the anti-clumping term's weight
+MAX_SHIFT = 0.25  #: the largest shift per step, in particle spacings
+#: the largest response of the shifts' gradient to a displacement of a lattice, ``grad = STIFFNESS d / dp^2``
+#: (columns displaced alternately: every other column by ``d``, the others by ``-d``)
+STIFFNESS = 3.0
+#: the largest relaxation per step, of that stiffest disorder: under 2, where the relaxation would overshoot and grow
+RELAXATION = 1.5
 FULL = 0.95  #: a particle moves where its concentration is at least this share of a lattice's
-MAX_SHIFT = 0.2  #: the largest shift per step, in particle spacings
 
 
 @numba.njit(cache=True, inline="always")
@@ -46,10 +58,10 @@ def _wendland(q, norm):
 
 
 @numba.njit(cache=True)
-def _concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, conc, grad):
-    """``conc_i = sum_j V_j W_ij`` and ``grad_i = sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij`` for the
-    first ``n_own`` points, over all points within ``2 h_k`` and their images across the mirrored
-    sides (left, right, bottom, top)."""
+def concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, grad, conc):
+    """``grad_i = sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij`` and ``conc_i = sum_j V_j W_ij`` for the first
+    ``n_own`` points, over all points within ``2 h_k`` and their images across the mirrored sides (left,
+    right, bottom, top)."""
     n = x.shape[0]
     support = 2.0 * hk
     norm = 7.0 / (4.0 * np.pi * hk * hk)
@@ -116,14 +128,14 @@ def _concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, c
 
 
 @numba.njit(cache=True)
-def _shifts(v, grad, conc, full, dt, coefficient, cap, mass, shifts):
-    """``-coefficient |v| dt grad`` (capped at ``cap``) at the particles with a full support, 0 elsewhere;
-    returns their mass and mass-weighted sum of shifts (mass, sx, sy)."""
+def _shifts(v, grad, movable, dt, rate, stiffness, cap, mass, shifts):
+    """``-min(rate |v| dt, RELAXATION) grad / stiffness`` (capped at ``cap``) at the ``movable`` particles, 0
+    elsewhere; returns their mass and mass-weighted sum of shifts (mass, sx, sy)."""
     total = np.zeros(3)
     for i in range(v.shape[0]):
-        if conc[i] < full:
+        if not movable[i]:
             continue
-        s = coefficient * np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) * dt
+        s = min(rate * np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) * dt, RELAXATION) / stiffness
         dx, dy = -s * grad[i, 0], -s * grad[i, 1]
         length = np.sqrt(dx * dx + dy * dy)
         if length > cap:
@@ -136,27 +148,19 @@ def _shifts(v, grad, conc, full, dt, coefficient, cap, mass, shifts):
 
 
 @numba.njit(cache=True)
-def _move(x, v, affine_v, a, affine_a, conc, full, mean, shifts):
-    """Less their mean, the shifts moved: positions, and values along the affine parts (if any)."""
+def _move(x, movable, mean, shifts):
+    """Less their mean, the ``movable`` particles shifted."""
     for i in range(x.shape[0]):
-        if conc[i] < full:
-            continue
-        dx, dy = shifts[i, 0] - mean[0], shifts[i, 1] - mean[1]
-        shifts[i, 0], shifts[i, 1] = dx, dy
-        x[i, 0] += dx
-        x[i, 1] += dy
-        if affine_v.shape[0]:
-            for c in range(2):
-                v[i, c] += affine_v[i, c, 0] * dx + affine_v[i, c, 1] * dy
-                a[i, c] += affine_a[i, c, 0] * dx + affine_a[i, c, 1] * dy
+        if movable[i]:
+            shifts[i, 0] -= mean[0]
+            shifts[i, 1] -= mean[1]
+            x[i, 0] += shifts[i, 0]
+            x[i, 1] += shifts[i, 1]
 
 
-def lattice_concentration(hk: float, dp: float) -> float:
-    """``sum_j V W`` at a point of an infinite square lattice of spacing ``dp``."""
-    k = np.arange(-4, 5) * dp
-    q = np.hypot(*np.meshgrid(k, k)).ravel() / hk
-    t = np.clip(1.0 - 0.5 * q, 0.0, None)
-    return float(dp * dp * 7.0 / (4.0 * np.pi * hk * hk) * np.sum(t**4 * (2 * q + 1)))
+def kernel_at_spacing(hk: float, dp: float) -> float:
+    """``W(dp)``, the kernel at one spacing (the anti-clumping term's scale)."""
+    return _wendland(dp / hk, 7.0 / (4.0 * np.pi * hk * hk))[0]
 
 
 def _with_neighbours(x: np.ndarray, volume: np.ndarray, reach: float, comm) -> tuple[np.ndarray, np.ndarray]:
@@ -184,6 +188,14 @@ def spacing(particles) -> float:
     return float(np.sqrt(np.median([v for v in values if v is not None])))
 
 
+def lattice_concentration(hk: float, dp: float) -> float:
+    """``sum_j V_j W_ij`` at a point of an unbounded square lattice of spacing ``dp``."""
+    k = np.arange(-4, 5) * dp  # the kernel reaches 2 h_k = 2.6 dp
+    q = np.hypot(*np.meshgrid(k, k)).ravel() / hk
+    t = np.clip(1.0 - 0.5 * q, 0.0, None)
+    return float(dp * dp * 7.0 / (4.0 * np.pi * hk * hk) * np.sum(t**4 * (2.0 * q + 1.0)))
+
+
 def shift(particles, dt: float, strength: float, mirror, dp: float) -> np.ndarray:
     """Shift the particles (see the module) after a step of size ``dt`` (collective): ``strength`` is
     ``A``, ``mirror`` which of the sides (left, right, bottom, top) reflect, ``dp`` the spacing
@@ -192,21 +204,11 @@ def shift(particles, dt: float, strength: float, mirror, dp: float) -> np.ndarra
     n = len(x)
     hk = SMOOTHING * dp
     near, near_volume = _with_neighbours(x, particles["volume"], 2.0 * hk, grid.comm)
-    shifts = np.zeros((n, 2))
-    if n == 0:
-        return shifts
-    norm = 7.0 / (4.0 * np.pi * hk * hk)
-    t = 1.0 - 0.5 / SMOOTHING
-    w_dp = norm * t**4 * (2.0 / SMOOTHING + 1.0)
-    conc, grad = np.empty(n), np.empty((n, 2))
-    _concentration_gradients(near, near_volume, n, grid.lower, grid.upper, np.asarray(mirror, dtype=np.bool_),
-                             hk, w_dp, conc, grad)
-    v, full = particles["velocity"], FULL * lattice_concentration(hk, dp)
-    total = grid.comm.allreduce(_shifts(v, grad, conc, full, dt, strength * 2.0 * hk, MAX_SHIFT * dp,
-                                        particles["mass"], shifts))
-    mean = total[1:] / total[0] if total[0] > 0 else np.zeros(2)
-    affine = "affine_velocity" in particles.fields
-    empty = np.zeros((0, 2, 2))
-    _move(x, v, particles["affine_velocity"] if affine else empty, particles["acceleration"],
-          particles["affine_acceleration"] if affine else empty, conc, full, mean, shifts)
+    shifts, grad, conc = np.zeros((n, 2)), np.empty((n, 2)), np.empty(n)
+    concentration_gradients(near, near_volume, n, grid.lower, grid.upper, np.asarray(mirror, dtype=np.bool_),
+                            hk, kernel_at_spacing(hk, dp), grad, conc)
+    movable = conc >= FULL * lattice_concentration(hk, dp)
+    total = grid.comm.allreduce(_shifts(particles["velocity"], grad, movable, dt, strength / dp, STIFFNESS / dp**2,
+                                        MAX_SHIFT * dp, particles["mass"], shifts))
+    _move(x, movable, total[1:] / total[0] if total[0] > 0 else np.zeros(2), shifts)
     return shifts
