@@ -2,11 +2,10 @@
 
 Runs interFoam (``benchmarks/interfoam.py``: the same tank, column and walls, VOF with air)
 at 40² and 80² cells (and 160² with ``--full``), and fempm's ``scenes/dambreak.toml`` as it
-stands (4 x 4 particles per cell, an adaptive step, Courant 0.6, dt <= 10 ms) and at Courant 0.7; with
-the seed's 2 x 2 particles per cell at Courant 0.5 (the scene until the particles were raised) and 1
-and at the seed's fixed step of 1 ms; 3 x 3 per cell at Courant 0.7; and at finer grids (60² and
-80², 2 x 2 per cell, Courant 1; 80² also at Courant 0.5), each to 2 s of flow, one after the other
-on one core. The accuracy measure is the surge
+stands (2 x 2 particles per cell, an adaptive step, Courant 0.8, dt <= 10 ms, particle shifting) and
+at Courant 1; without the shifting; at the seed's fixed step of 1 ms; with 4 x 4 particles per cell
+at Courant 0.6; and at finer grids (60² and 80², Courant 1; 80² also at Courant 0.5), each to 2 s of
+flow, one after the other on one core. The accuracy measure is the surge
 front's RMS relative difference from interFoam's converged 160² front over 0.3 < T <= 3 (``fempm.references.front_difference``; the
 stored reference, or this invocation's own 160² run with ``--full``), i.e. over the first
 0.27 s. Prints a table (grid, steps, wall time, front difference) and each code's wall time
@@ -60,13 +59,15 @@ WARM_UP_TIME = 0.01                      # s of flow of the run before fempm's t
 HEAD_TO_HEAD = 5                         # pairs of interFoam 40² and the shipped scene, alternated, for the headline
 TARGETS = (0.025, 0.012)                 # front differences at which the wall times are compared
 FAST = {"courant": 1.0, "dt": 1e-2}      # an adaptive step: its Courant number and largest step
-BETWEEN = {"courant": 0.7, "dt": 1e-2}   # between the scene's Courant 0.6 and FAST
-HALF = {"courant": 0.5, "dt": 1e-2}      # the scene's step before its particles went from 2 x 2 to 4 x 4
+SMALL = {"courant": 0.6, "dt": 1e-2}     # a smaller adaptive step, for 4 x 4 particles per cell
+HALF = {"courant": 0.5, "dt": 1e-2}
 SEED_STEP = {"courant": None, "dt": 1e-3}  # the seed's fixed step (None leaves the scene's courant out)
+UNSHIFTED = {"shifting": 0.0}            # the [solver] change: no particle shifting (fempm.shifting)
 #: fempm's runs after the scene as it stands: (cells per side, particles per cell) or None for the
-#: scene's 40² and 4 x 4 per cell (60²: the column 15 x 30 cells), and the step (None: the scene's)
-FEMPM_RUNS = ((None, BETWEEN), ((40, 4), HALF), ((40, 4), FAST), ((40, 4), SEED_STEP), ((40, 9), BETWEEN),
-              ((60, 4), FAST), ((80, 4), FAST), ((80, 4), HALF))
+#: scene's 40² and 2 x 2 per cell (60²: the column 15 x 30 cells), the step (None: the scene's) and
+#: the changes of [solver] (None: none)
+FEMPM_RUNS = ((None, FAST, None), (None, None, UNSHIFTED), (None, SEED_STEP, None), ((40, 16), SMALL, None),
+              ((60, 4), FAST, None), ((80, 4), FAST, None), ((80, 4), HALF, None))
 STORED = (40, 80, 160)                   # grids of the stored interFoam fronts
 
 
@@ -101,9 +102,9 @@ def interfoam_row(cells: int, end_time: float) -> Row:
 
 
 def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int | None = None,
-              step: dict | None = None) -> Row:
-    """The dam-break scene (its grid, particles and [time] keys changed when given) run through the
-    public API."""
+              step: dict | None = None, solver: dict | None = None) -> Row:
+    """The dam-break scene (its grid, particles, [time] and [solver] keys changed when given) run
+    through the public API."""
     from fempm.scene import parse_scene
     from fempm.simulation import run_scene
 
@@ -116,6 +117,7 @@ def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int
     folder = Path(tempfile.mkdtemp(prefix="fempm-versus-interfoam-"))
     try:
         data["time"] = {k: v for k, v in {**data["time"], **(step or {}), "end": end_time}.items() if v is not None}
+        data["solver"] = {**data["solver"], **(solver or {})}
         data["output"] = {"folder": str(folder), "progress": False}  # histories and summary only,
         data.pop("gauges", None)  # no gauges either (their plot alone costs a second or two)
         scene = parse_scene(data, source=SCENE)
@@ -130,7 +132,8 @@ def fempm_row(end_time: float, cells: int | None = None, particles_per_cell: int
         print(f"versus_interfoam: fempm run ended {summary['status']}: {summary['cause']}", flush=True)
     return Row("fempm", scene.domain.shape[0], scene.bodies[0].particles_per_cell, summary["steps"], wall, cpu,
                summary["wall_time_s"], dimensionless_front(t, x),
-               note=_step_note(scene.time) + f"; {summary['particles']} particles",
+               note=_step_note(scene.time) + ("" if scene.solver.shifting else ", no shifting")
+               + f"; {summary['particles']} particles",
                step=f"C {scene.time.courant:g}" if scene.time.courant else f"dt {scene.time.dt:g}")
 
 
@@ -327,8 +330,8 @@ def run_all(quick: bool, full: bool) -> tuple[list[Row], str, str, str | None, l
     fempm_row(WARM_UP_TIME)  # the process's one-off loading, which every later run finds done
     rows.append(fempm_row(end_time))
     if not quick:
-        for grid, step in FEMPM_RUNS:
-            rows.append(fempm_row(end_time, *(grid or (None, None)), step=step))
+        for grid, step, solver in FEMPM_RUNS:
+            rows.append(fempm_row(end_time, *(grid or (None, None)), step=step, solver=solver))
     reference = "interFoam 160²"
     ref, reference_long = interfoam_front(160), "the stored interFoam 160² front (`fempm.references.interfoam_front(160)`)"
     if full and not skipped:

@@ -252,20 +252,21 @@ def test_shipped_scenes_read_back_unchanged_from_their_resolved_form():
 
 def test_dambreak_scene_is_the_seeds_tank_and_water(comm):
     """The shipped scene builds the demo's grid, particles and options exactly: the seed's tank and
-    water, 4 x 4 particles per cell (the seed: 2 x 2), the step adaptive (Courant 0.6, at most 10 ms)."""
+    water, 2 x 2 particles per cell (as the seed's), the step adaptive (Courant 0.8, at most 10 ms), the
+    particles shifted (A = 4)."""
     from fempm.simulation import build_solver
 
     scene = load_scene(SCENES / "dambreak.toml")
     solver = build_solver(scene, comm)
     grid = fempm.Grid.from_cells(comm, (0.0, 0.0), (0.584, 0.584), (40, 40))
     seeded = fempm.Particles(grid)
-    seeded.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=4, density=1000.0)
-    assert solver.grid.h == grid.h and solver.particles.global_count() == 3200
+    seeded.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=2, density=1000.0)
+    assert solver.grid.h == grid.h and solver.particles.global_count() == 800
     assert np.array_equal(solver.particles.x, seeded.x) and np.array_equal(solver.particles.id, seeded.id)
     physics, scheme = solver.physics, solver.scheme
     assert (scheme.dt, scheme.courant, physics.viscosity, scheme.alpha, scheme.pspg, scheme.pic_blend, physics.gravity) == \
-        (1e-2, 0.6, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
-    assert (scheme.transfer, scheme.pic_rate) == ("affine-flip", 100.0)
+        (1e-2, 0.8, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
+    assert (scheme.transfer, scheme.pic_rate, scheme.surface_aware, scheme.shifting) == ("affine-flip", 100.0, True, 4.0)
     assert solver.particles["affine_velocity"].shape == solver.particles["affine_acceleration"].shape == (
         len(solver.particles), 2, 2)
     assert set(physics.wall_conditions().values()) == {"slip"} and solver.basis.name == "B-spline"

@@ -68,17 +68,17 @@ def test_dam_break_at_ten_times_the_seeds_step(full):
     the start regained in the sloshing; 13 % with the start configuration's divergence) but stays
     bounded, and the volume holds."""
     o = measured("dt-10x", full)
-    # measured 1.802, 1.0, 0.0300 with the scene's surface-aware correction (crowding only 1.791, 1.0, 0.0304, both
-    # versions; before the crowding tolerance 2.509, 1.0, 0.0306: a run-up jet
+    # measured 1.886, 1.0, 0.0218 with the scene's particle shifting (without 1.802, 1.0, 0.0300; crowding only
+    # 1.791, 1.0, 0.0304; before the crowding tolerance 2.509, 1.0, 0.0306: a run-up jet
     # at 2.5 times free fall; from a_0 = 0: 1.791, 1.0, 0.0290, the whole flow a half step late; start-configuration
     # divergence 1.962, 1.0, 0.128; FLIP/PIC 2.713, 1.01225, 0.0845)
-    assert_sound(o, 800, speed_ratio=1.81, energy_max=1.0 + EXACT, energy_rise=0.032)
+    assert_sound(o, 800, speed_ratio=1.90, energy_max=1.0 + EXACT, energy_rise=0.032)
     # measured 2.936 (crowding only 2.918; before the crowding tolerance 4.088; start-configuration divergence 3.197)
     assert o.max_cfl > 2.8
-    # measured 1.015 (2 s, surface-aware); crowding only 0.975 (2 s), 1.02 (4 s) (before the crowding tolerance 0.990
-    # (2 s); from a_0 = 0 0.985); FLIP/PIC
+    # measured 1.095 (2 s) with the scene's particle shifting, the water still sloshing (without 1.015; crowding only
+    # 0.975 (2 s), 1.02 (4 s); before the crowding tolerance 0.990 (2 s); from a_0 = 0 0.985); FLIP/PIC
     # 0.915 (2 s)
-    assert 0.88 <= cell_ratio(o) <= 1.03
+    assert 0.88 <= cell_ratio(o) <= 1.10
     # the walls act: measured 641 (2 s, surface-aware); crowding only 455 (2 s), 498 (4 s) (before the crowding
     # tolerance 567, 674; 604 with PSPG's viscous
     # part, negligible for water here, built; from a_0 = 0 553); FLIP/PIC 1332 (2 s), 1618 (4 s)
@@ -95,10 +95,11 @@ def test_at_twenty_times_the_seeds_step_the_eruption_is_diagnosed(full):
     25 %); the energy check stops it, finite, with its mass."""
     o = measured("dt-20x", full)
     assert o.run.status == "stopped" and o.run.cause.startswith("energy growth")
-    # measured: 32 steps, 0.64 s, a rise of 16 % (before the crowding tolerance 31 steps, 0.62 s, 14 %;
+    # measured: 35 steps, 0.70 s, a particle at 10.1 m/s, with the scene's particle shifting (without: 32 steps,
+    # 0.64 s, a rise of 16 %; before the crowding tolerance 31 steps, 0.62 s, 14 %;
     # start-configuration divergence: 40 steps, 0.8 s, a particle at 9.49 m/s; FLIP/PIC two-sided: 29 steps, 0.58 s;
     # affine-FLIP two-sided: 34 steps, 0.68 s)
-    assert o.run.steps == 32 and o.run.time == pytest.approx(0.64)
+    assert o.run.steps == 35 and o.run.time == pytest.approx(0.70)
     assert (o.finite, o.particles, abs(o.mass_error) <= 1e-14) == (True, 800, True)
 
 
@@ -107,16 +108,18 @@ def test_dam_break_of_water(full):
     """mu = 1e-3 Pa s at the seed's step: the fastest particle is the
     run-up jet at the right wall (t = 0.28 s), 2.1 times free fall from the column's top."""
     o = measured("water", full)
-    # measured 2.018, 1.0076, 0.0084 at 0.6 s and 2 s (before the crowding tolerance 2.022, 1.0082, 0.0085 and
+    # measured 2.104, 1.0, 0.0018 at 0.6 s with the scene's particle shifting: the energy no longer rises at the
+    # impact; without it 2.018, 1.0076, 0.0084 at 0.6 s and 2 s (before the crowding tolerance 2.022, 1.0082, 0.0085 and
     # 2.02, 1.008, 0.009; from a_0 = 0: 2.025 and 2.085,
     # 1.0083, 0.0086; start-configuration divergence 2.109, 1.0153, 0.0159; FLIP/PIC 1.782, 1.0, 6.3e-5): the
     # affine-FLIP transfer's energy rises by 0.8 % of the start at the wall impact, where FLIP/PIC's only fell
-    assert_sound(o, 800, speed_ratio=bound(full, 2.04, 2.10), energy_max=1.0 + bound(full, 0.009, 0.009),
+    assert_sound(o, 800, speed_ratio=bound(full, 2.11, 2.15), energy_max=1.0 + bound(full, 0.009, 0.009),
                  energy_rise=bound(full, 0.0095, 0.0095))
     # measured 1.225 (0.6 s), 1.17 (2 s) (from a_0 = 0: 1.215, 1.18); FLIP/PIC 1.16 (0.6 s), 1.10 (2 s)
     assert 1.09 <= cell_ratio(o) <= 1.25
-    # measured 61 (0.6 s), 193 (2 s) (before the crowding tolerance 50, 81; from a_0 = 0: 52, 175); FLIP/PIC 0
-    assert o.wall_stops <= bound(full, 70, 210)
+    # measured 61 (0.6 s), 347 (2 s) with the scene's particle shifting, whose moves cut at a wall count too
+    # (without 61, 193; before the crowding tolerance 50, 81; from a_0 = 0: 52, 175); FLIP/PIC 0
+    assert o.wall_stops <= bound(full, 70, 360)
 
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
@@ -125,12 +128,14 @@ def test_dam_break_of_a_very_viscous_fluid(full):
     velocity block far more than water's, and the column slumps slower (no jet: the speed
     stays near free fall's)."""
     o = measured("viscous", full)
-    assert_sound(o, 800, speed_ratio=1.08, energy_max=1.0 + bound(full, EXACT, 1e-4),
-                 energy_rise=bound(full, EXACT, 1e-4))  # measured 1.0648, 1.0, 0 (before the crowding tolerance
-    # 1.0722; from a_0 = 0 1.0783; FLIP/PIC 1.059)
-    # measured 1.095 (0.6 s), 1.07 (3 s) (before the crowding tolerance 1.090, 1.07; from a_0 = 0: 1.090); FLIP/PIC
+    assert_sound(o, 800, speed_ratio=1.13, energy_max=1.0 + bound(full, EXACT, 1e-4),
+                 energy_rise=bound(full, EXACT, 1e-4))  # measured 1.124, 1.0, 0 with the scene's particle shifting
+    # (without 1.0648, 1.0, 0: the fastest particle, at the impact on the right wall, 14 % faster; before the
+    # crowding tolerance 1.0722; from a_0 = 0 1.0783; FLIP/PIC 1.059)
+    # measured 1.065 (0.6 s), 1.005 (3 s: the layer flat, nearly the column's 200 cells) with the scene's particle
+    # shifting (without 1.095, 1.07; before the crowding tolerance 1.090, 1.07; from a_0 = 0: 1.090); FLIP/PIC
     # 1.055 (0.6 s), 1.06 (3 s)
-    assert 1.05 <= cell_ratio(o) <= 1.10
+    assert bound(full, 1.05, 0.99) <= cell_ratio(o) <= 1.10
 
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
@@ -212,12 +217,13 @@ def test_water_driven_into_a_corner(full):
     not an oscillation: the run goes on), jets along both walls and falls back into the
     corner. The energy only falls."""
     o = measured("corner", full)
-    # 20 x 20 particles; measured 1.880, 1.0, 0.00114 (before the crowding tolerance 1.902, 1.0, 0.00231; affine 1.903, 1.0, 0.0021; FLIP/PIC 1.869, 1.0, 0)
+    # 20 x 20 particles; measured 1.739, 1.0, 0.00132 with the scene's particle shifting (without 1.880, 1.0, 0.00114;
+    # before the crowding tolerance 1.902, 1.0, 0.00231; affine 1.903, 1.0, 0.0021; FLIP/PIC 1.869, 1.0, 0)
     assert_sound(o, 400, speed_ratio=1.91, energy_max=1.0 + bound(full, EXACT, 1e-4),
                  energy_rise=bound(full, 0.0024, 0.0022))
-    # measured 1.536 (0.5 s; 1.018 at 3 s; from a_0 = 0 1.491; start-configuration divergence 1.455); FLIP/PIC 1.273 (0.5 s),
-    # 0.99 (3 s)
-    assert 0.98 <= cell_ratio(o) <= 1.55
+    # measured 1.591 with the shifting (without 1.536; 0.5 s; 1.018 at 3 s; from a_0 = 0 1.491; start-configuration
+    # divergence 1.455); FLIP/PIC 1.273 (0.5 s), 0.99 (3 s)
+    assert 0.98 <= cell_ratio(o) <= 1.60
     # the centroid's distance from the corner along gravity: 2/3 of the depth sqrt(A) of the
     # right-angled triangle of area A the water settles into
     if full:
@@ -236,18 +242,18 @@ def test_a_long_run_settles_with_its_volume(full):
         # measured 2.085, 1.0083, 0.0086 (FLIP/PIC, two-sided walls: 1.78, 1.000, 0.004)
         assert_sound(o, 800, speed_ratio=2.10, energy_max=1.0 + 0.009, energy_rise=0.0095)
     else:  # the big step's energy error, as in test_dam_break_at_ten_times_the_seeds_step
-        # measured 1.802, 1.0, 0.030 with the scene's surface-aware correction (earlier 2.509, 1.0, 0.0306; from
-        # a_0 = 0: 1.791, 1.0, 0.0290; start-configuration divergence 1.962,
+        # measured 1.886, 1.0, 0.022 with the scene's particle shifting (without 1.802, 1.0, 0.030; earlier 2.509,
+        # 1.0, 0.0306; from a_0 = 0: 1.791, 1.0, 0.0290; start-configuration divergence 1.962,
         # 1.0, 0.128; FLIP/PIC 2.713)
         assert_sound(o, 800, speed_ratio=2.52, energy_max=1.0 + EXACT, energy_rise=0.032)
-    # the layer: 66.6 mm after 5 s with the scene's surface-aware correction, still sloshing (crowding only 63.9 mm;
+    # the layer: 71.4 mm after 5 s with the scene's particle shifting (66.6 mm without), still sloshing (crowding only 63.9 mm;
     # 68.3 mm before the crowding tolerance, 67.4 mm without PSPG's
     # viscous part; from a_0 = 0 72.1 mm;
     # start-configuration divergence 67.7 mm, FLIP/PIC 68.6 mm; a sloshing surface's snapshot moves with
     # round-off, hence 3 % in CI); after 40 s it still sloshes (fastest particle 0.13-0.33 m/s) and the snapshot
     # read 73.9, 74.5, 76.8 and 68.8 mm (the crowding tolerance) on codes whose layers' mean depths agree within
     # 1 % (from a_0 = 0 77.7 mm; FLIP/PIC 77.6): the full version holds it within 7 % of SETTLED_DEPTH = 73 mm
-    assert o.surface_height == pytest.approx(bound(full, 0.0666, SETTLED_DEPTH), rel=bound(full, 0.03, 0.07))
+    assert o.surface_height == pytest.approx(bound(full, 0.0714, SETTLED_DEPTH), rel=bound(full, 0.03, 0.07))
     if full:  # the layer's mean depth over the last 5 s, twice its centroid's height: 76.4 mm, std 1.0 mm over
         # those seconds (before the crowding tolerance 77.05; 76.92 with PSPG's viscous part)
         t, centroid = o.history["t"], np.asarray(o.history["centroid"])
