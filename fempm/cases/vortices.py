@@ -35,11 +35,13 @@ from fempm.options import Physics, Scheme
 from fempm.particles import Particles, Rectangle
 from fempm.verification import advance
 
-__all__ = ["RHO", "VARIANTS", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "taylor_green"]
+__all__ = ["RHO", "SHIFTING", "VARIANTS", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "taylor_green"]
 
 RHO = 1000.0  #: kg/m^3
 #: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
 VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0}, "affine-FLIP": {}}
+#: the shipped dam break's particle shifting (``scenes/dambreak.toml``, ``solver.shifting``; fempm.shifting)
+SHIFTING = 4.0
 CENTRE = np.array([0.5, 0.5])
 
 
@@ -103,15 +105,16 @@ def _window_losses(t: np.ndarray, ke: np.ndarray, viscous: float, windows: int) 
 
 
 def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.25, U: float = 1.0,
-                 basis: str = "bspline", per_cell: int = 2, pspg: bool = Scheme.pspg) -> dict:
+                 basis: str = "bspline", per_cell: int = 2, pspg: bool = Scheme.pspg,
+                 shifting: float = Scheme.shifting) -> dict:
     """The Taylor-Green vortex to ``end``: ``numerical`` is the fitted ``-d ln KE/dt - 4 pi^2 nu``.
 
     Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``windows`` (the loss over each of
     :data:`WINDOWS` equal spans), ``ke_end`` and ``exact_end`` (KE over its start), ``status``,
-    ``cause``, ``t``, ``wall``, and the run's ``per_cell`` and ``pspg``.
+    ``cause``, ``t``, ``wall``, and the run's ``per_cell``, ``pspg`` and ``shifting``.
     """
     solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha=0.0,
-                        per_cell=per_cell, pspg=pspg)
+                        per_cell=per_cell, pspg=pspg, shifting=shifting)
     times, energy = [0.0], [kinetic_energy(solver.particles)]
 
     def each(s):
@@ -126,7 +129,7 @@ def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.
             "windows": _window_losses(t, ke, viscous, WINDOWS),
             "numerical": rate - viscous, "ke_end": float(ke[-1] / ke[0]), "exact_end": float(np.exp(-viscous * t[-1])),
             "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall,
-            "per_cell": per_cell, "pspg": pspg}
+            "per_cell": per_cell, "pspg": pspg, "shifting": shifting}
 
 
 # -- Gresho -----------------------------------------------------------------------------------------
@@ -189,11 +192,12 @@ def gresho_measures(solver) -> dict:
     return {"ke": kinetic_energy(p), "L": L, "profile": float(error)}
 
 
-def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2) -> dict:
-    """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell): relative changes of
-    kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end (``profile``) and
-    at the start (``profile0``)."""
-    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, per_cell=per_cell)
+def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2,
+           shifting: float = Scheme.shifting) -> dict:
+    """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell, particle ``shifting``):
+    relative changes of kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end
+    (``profile``) and at the start (``profile0``)."""
+    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, per_cell=per_cell, shifting=shifting)
     start = gresho_measures(solver)
     run = advance(solver, end)
     final = gresho_measures(solver)

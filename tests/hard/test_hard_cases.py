@@ -239,8 +239,9 @@ def test_a_long_run_settles_with_its_volume(full):
     area over the floor's width (73 mm)."""
     o = measured("long", full)
     if full:  # the energy rises once, by 0.8 % of the start's, at the wall impact (as test_dam_break_of_water's)
-        # measured 2.085, 1.0083, 0.0086 (FLIP/PIC, two-sided walls: 1.78, 1.000, 0.004)
-        assert_sound(o, 800, speed_ratio=2.10, energy_max=1.0 + 0.009, energy_rise=0.0095)
+        # measured 2.104, 1.0, 0.0070 with the scene's particle shifting (without 2.085, 1.0083, 0.0086; FLIP/PIC,
+        # two-sided walls: 1.78, 1.000, 0.004)
+        assert_sound(o, 800, speed_ratio=2.11, energy_max=1.0 + 0.009, energy_rise=0.0095)
     else:  # the big step's energy error, as in test_dam_break_at_ten_times_the_seeds_step
         # measured 1.886, 1.0, 0.022 with the scene's particle shifting (without 1.802, 1.0, 0.030; earlier 2.509,
         # 1.0, 0.0306; from a_0 = 0: 1.791, 1.0, 0.0290; start-configuration divergence 1.962,
@@ -257,6 +258,7 @@ def test_a_long_run_settles_with_its_volume(full):
     if full:  # the layer's mean depth over the last 5 s, twice its centroid's height: 76.4 mm, std 1.0 mm over
         # those seconds (before the crowding tolerance 77.05; 76.92 with PSPG's viscous part)
         t, centroid = o.history["t"], np.asarray(o.history["centroid"])
+        print("mean depth", 2 * centroid[t >= t[-1] - 5.0, 1].mean())
         assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0764, rel=0.01)
     # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.264 at 5 s
     # (from a_0 = 0 0.277; start-configuration divergence 0.280)
