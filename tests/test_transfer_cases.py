@@ -117,7 +117,7 @@ def test_gresho_vortex_to_t_3():
     # the dam break's particle shifting: the energy kept 4 times better, the angular momentum twice as far off
     shifted = vortices.gresho("affine-FLIP", 64, 0.4 / 64, 3.0, shifting=vortices.SHIFTING)
     print(shifted)
-    assert -0.030 < shifted["ke"] < new["ke"]  # measured -2.55 % (4 x 4 per cell: -2.15 %, unshifted -4.61 %)
+    assert max(new["ke"], -0.030) < shifted["ke"] < 0  # measured -2.55 % (4 x 4 per cell: -2.15 %, unshifted -4.61 %)
     assert -0.0040 < shifted["L"] < 0  # measured -0.348 % (4 x 4 per cell: -0.139 %, unshifted -0.089 %)
 
 
