@@ -19,13 +19,14 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
-from fempm import diagnostics, shifting, transfer
+from fempm import diagnostics, transfer
 from fempm.bases import Basis
 from fempm.density import DeepWater
 from fempm.options import SIDES, Controls, Physics, Scheme
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.region import MatrixRegion
+from fempm.shifting import ParticleShifting
 from fempm.safeguards import EnergyWatch, PressureCheck, impact_impulse
 from fempm.space import GridFunction, Space
 from fempm.stepper import StepControl, Stepper
@@ -125,8 +126,8 @@ class ImplicitSolver(Stepper):
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
         walls = physics.wall_conditions()
-        self._mirrors = [walls[side] in ("slip", "no-slip") for side in SIDES]  # fempm.shifting
-        self._spacing = shifting.spacing(particles) if scheme.shifting > 0 else 0.0
+        self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES])
+                          if scheme.shifting > 0 else None)
         self._values, self._divergence = np.empty((0, self._g2p.space.bs)), np.empty(0)  # G2P's (_particle_room)
 
     # -- one step (Stepper.step chooses dt, retries, moves the clock) ---------------------------
@@ -220,8 +221,8 @@ class ImplicitSolver(Stepper):
         x = p.x
         _move(values, g.space.field_offset("du"), g.space.field_offset("p"), x, p["pressure"])
         p.fields["x"] = s.walls.keep_inside(x)
-        if sc.shifting > 0:  # the particles spread evenly again (fempm.shifting)
-            shifting.shift(p, s.dt, sc.shifting, self._mirrors, self._spacing)
+        if self._shifting:  # the particles spread evenly again (fempm.shifting)
+            self._shifting(p, s.dt)
             p.fields["x"] = s.walls.keep_inside(p.x)
         self.max_divergence = self.grid.comm.allreduce(float(np.abs(divergence).max(initial=0.0)), op=MPI.MAX)
         self.check_pressure(p["pressure"], s.dt)

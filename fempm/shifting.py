@@ -34,7 +34,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["concentration_gradients", "kernel_at_spacing", "lattice_concentration", "shift", "spacing"]
+__all__ = ["ParticleShifting", "concentration_gradients", "kernel_at_spacing", "lattice_concentration", "spacing"]
 
 SMOOTHING = 1.3  #: the kernel's smoothing length over the particle spacing
 TENSILE = 0.2  #: R: the anti-clumping term's weight
@@ -77,21 +77,25 @@ def concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, gr
         b = bx[i] + nbx * by[i]
         nxt[i] = head[b]
         head[b] = i
+    support2 = support * support
+    ox = np.empty(4)  # the images this particle sees: x_j -> (ox - x_j) or x_j, likewise y
+    oy = np.empty(4)
+    fx = np.empty(4)
+    fy = np.empty(4)
     for i in range(n_own):
         xi, yi = x[i, 0], x[i, 1]
         # the mirrors within this particle's support: a side in x and one in y at most
-        mx = 0.0
-        use_x = False
-        if mirror[0] and xi - lower[0] < support:
-            mx, use_x = lower[0], True
-        elif mirror[1] and upper[0] - xi < support:
-            mx, use_x = upper[0], True
-        my = 0.0
-        use_y = False
-        if mirror[2] and yi - lower[1] < support:
-            my, use_y = lower[1], True
-        elif mirror[3] and upper[1] - yi < support:
-            my, use_y = upper[1], True
+        images = 1
+        ox[0] = oy[0] = 0.0
+        fx[0] = fy[0] = 1.0
+        if mirror[0] and xi - lower[0] < support or mirror[1] and upper[0] - xi < support:
+            ox[1], oy[1], fx[1], fy[1] = 2.0 * (lower[0] if xi - lower[0] < support else upper[0]), 0.0, -1.0, 1.0
+            images = 2
+        if mirror[2] and yi - lower[1] < support or mirror[3] and upper[1] - yi < support:
+            my = 2.0 * (lower[1] if yi - lower[1] < support else upper[1])
+            for k in range(images):
+                ox[images + k], oy[images + k], fx[images + k], fy[images + k] = ox[k], my, fx[k], -1.0
+            images *= 2
         c = 0.0
         gx = 0.0
         gy = 0.0
@@ -105,16 +109,14 @@ def concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, gr
                     continue
                 j = head[b0 + nbx * b1]
                 while j >= 0:
-                    for image in range(4):
-                        if image == 1 and not use_x or image == 2 and not use_y or image == 3 and not (use_x and use_y):
+                    for k in range(images):
+                        dx = xi - (ox[k] + fx[k] * x[j, 0])
+                        dy = yi - (oy[k] + fy[k] * x[j, 1])
+                        r2 = dx * dx + dy * dy
+                        if r2 >= support2:
                             continue
-                        xj = 2.0 * mx - x[j, 0] if image == 1 or image == 3 else x[j, 0]
-                        yj = 2.0 * my - x[j, 1] if image >= 2 else x[j, 1]
-                        dx, dy = xi - xj, yi - yj
-                        r = np.sqrt(dx * dx + dy * dy)
+                        r = np.sqrt(r2)
                         w, dw = _wendland(r / hk, norm)
-                        if w == 0.0:
-                            continue
                         c += volume[j] * w
                         if r > 0.0:
                             ratio = w / w_dp
@@ -196,19 +198,32 @@ def lattice_concentration(hk: float, dp: float) -> float:
     return float(dp * dp * 7.0 / (4.0 * np.pi * hk * hk) * np.sum(t**4 * (2.0 * q + 1.0)))
 
 
-def shift(particles, dt: float, strength: float, mirror, dp: float) -> np.ndarray:
-    """Shift the particles (see the module) after a step of size ``dt`` (collective): ``strength`` is
-    ``A``, ``mirror`` which of the sides (left, right, bottom, top) reflect, ``dp`` the spacing
-    (:func:`spacing`). Returns the shifts ``(n, 2)``."""
-    grid, x = particles.grid, particles.x
-    n = len(x)
-    hk = SMOOTHING * dp
-    near, near_volume = _with_neighbours(x, particles["volume"], 2.0 * hk, grid.comm)
-    shifts, grad, conc = np.zeros((n, 2)), np.empty((n, 2)), np.empty(n)
-    concentration_gradients(near, near_volume, n, grid.lower, grid.upper, np.asarray(mirror, dtype=np.bool_),
-                            hk, kernel_at_spacing(hk, dp), grad, conc)
-    movable = conc >= FULL * lattice_concentration(hk, dp)
-    total = grid.comm.allreduce(_shifts(particles["velocity"], grad, movable, dt, strength / dp, STIFFNESS / dp**2,
-                                        MAX_SHIFT * dp, particles["mass"], shifts))
-    _move(x, movable, total[1:] / total[0] if total[0] > 0 else np.zeros(2), shifts)
-    return shifts
+class ParticleShifting:
+    """The shifting of a run's particles (see the module), its constants set once.
+
+    Args:
+        particles: the particles (their median volume sets the spacing ``dp``; collective).
+        strength: ``A``, the relaxation per spacing moved.
+        mirror: which of the grid's sides (left, right, bottom, top) reflect: its walls.
+    """
+
+    def __init__(self, particles, strength: float, mirror):
+        self.strength, self.mirror = float(strength), np.asarray(mirror, dtype=np.bool_)
+        self.dp = spacing(particles)
+        self.hk = SMOOTHING * self.dp
+        self.w_dp = kernel_at_spacing(self.hk, self.dp)
+        self.full = FULL * lattice_concentration(self.hk, self.dp)
+
+    def __call__(self, particles, dt: float) -> np.ndarray:
+        """Shift ``particles`` after a step of size ``dt`` (collective); returns the shifts ``(n, 2)``."""
+        grid, x, dp = particles.grid, particles.x, self.dp
+        n = len(x)
+        near, near_volume = _with_neighbours(x, particles["volume"], 2.0 * self.hk, grid.comm)
+        shifts, grad, conc = np.zeros((n, 2)), np.empty((n, 2)), np.empty(n)
+        concentration_gradients(near, near_volume, n, grid.lower, grid.upper, self.mirror, self.hk, self.w_dp,
+                                grad, conc)
+        movable = conc >= self.full
+        total = grid.comm.allreduce(_shifts(particles["velocity"], grad, movable, dt, self.strength / dp,
+                                            STIFFNESS / dp**2, MAX_SHIFT * dp, particles["mass"], shifts))
+        _move(x, movable, total[1:] / total[0] if total[0] > 0 else np.zeros(2), shifts)
+        return shifts

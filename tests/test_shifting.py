@@ -39,7 +39,7 @@ def _disorder(water, dp):
 def test_a_lattice_filling_a_mirrored_box_does_not_move():
     water = _water(MPI.COMM_SELF)
     dp = shifting.spacing(water)
-    shifts = shifting.shift(water, DT, A, MIRRORS, dp)
+    shifts = shifting.ParticleShifting(water, A, MIRRORS)(water, DT)
     assert np.abs(shifts).max() < 1e-12 * dp  # measured 3e-17 dp
 
 
@@ -50,8 +50,9 @@ def test_shifting_spreads_a_disordered_lattice_and_the_particles_keep_their_valu
     water.fields["x"] = np.clip(water.x + rng.uniform(-0.25, 0.25, water.x.shape) * dp, 1e-9, 1 - 1e-9)
     state = {name: water[name].copy() for name in ("velocity", "acceleration", "affine_velocity")}
     before = _disorder(water, dp)
+    shift = shifting.ParticleShifting(water, A, MIRRORS)
     for _ in range(30):
-        shifting.shift(water, DT, A, MIRRORS, dp)
+        shift(water, DT)
     after = _disorder(water, dp)
     assert after < 0.08 * before  # measured 0.019 of 0.433
     assert all(np.array_equal(water[name], value) for name, value in state.items())
@@ -61,11 +62,12 @@ def test_particles_at_rest_or_along_a_free_surface_stay_and_the_mass_does_not_mo
     water = _water(MPI.COMM_SELF, upper=(1.0, 0.5), speed=0.0)
     dp = shifting.spacing(water)
     water.fields["x"][:, 0] += 0.1 * dp * np.sin(40 * water.x[:, 1])  # disorder
-    assert not shifting.shift(water, DT, A, MIRRORS, dp).any()
+    shift = shifting.ParticleShifting(water, A, MIRRORS)
+    assert not shift(water, DT).any()
     water["velocity"][:] = (1.0, 0.0)
     top = water.x[:, 1] > 0.5 - dp  # the top row: its kernel (2.6 dp) reaches well into air, not full
     x0 = water.x.copy()
-    shifts = shifting.shift(water, DT, A, MIRRORS, dp)
+    shifts = shift(water, DT)
     assert np.array_equal(water.x[top], x0[top])
     assert np.abs(shifts).max() > 0.05 * dp  # measured 0.091 dp
     assert np.abs(water["mass"] @ shifts).max() < 1e-15 * water["mass"].sum() * dp  # measured 2e-19
@@ -78,7 +80,7 @@ def test_shifts_are_the_same_on_one_rank_and_on_all():
         water = _water(comm)
         dp = shifting.spacing(water)
         water.fields["x"] = water.x + 0.1 * dp * np.sin(17 * water.x[:, ::-1])
-        shifts = shifting.shift(water, DT, A, MIRRORS, dp)
+        shifts = shifting.ParticleShifting(water, A, MIRRORS)(water, DT)
         order = np.argsort(np.concatenate(comm.allgather(water.id)))
         results[name] = np.concatenate(comm.allgather(shifts))[order]
     assert np.abs(results["all"]).max() > 0
