@@ -12,8 +12,8 @@ machine's load than the wall time, which is given too) and the ratio this / othe
     python benchmarks/step_cost.py --case 40:100:300 --case 236:60:10 --against ../main --page docs/speed-step.md
 
 A case is ``CELLS:WARM:STEPS`` or ``CELLS:WARM:STEPS:N`` with N x N particles per cell (default 2,
-the seed's; 236 cells at 2 x 2: 27,848 particles, the size of Tesserae.jl's dam break; 40:100:300:4
-is the shipped scene's 3200). ``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from
+the seed's and the shipped scene's; 236 cells at 2 x 2: 27,848 particles, the size of Tesserae.jl's dam
+break; 40:100:300:4 gives 3200, the scene until its particles were shifted). ``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from
 DIR); ``--page`` writes the tables into a Markdown page (``benchmarks/templates/speed-step.md``).
 """
 

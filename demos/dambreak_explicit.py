@@ -91,7 +91,7 @@ except ValueError:
 # ## The grid, the water and the explicit solver
 #
 # `dambreak.explicit_solver` seeds the same grid as the implicit demo, with the seed's 2 x 2
-# particles per cell (`--ppc N` for N x N; the shipped scene has 4 x 4), through
+# particles per cell (`--ppc N` for N x N; the shipped scene's too), through
 # `simulation.build_material`, and builds the explicit solver with the scene's fluid and walls;
 # its step follows from the CFL condition of the sound speed and the column's free-fall speed
 # $\sqrt{2gH}$, the largest the flow reaches.

@@ -43,7 +43,7 @@ HEIGHT = 2 * WIDTH  #: the column's height, m
 TANK = 4 * WIDTH  #: the square tank's side, m
 GRAVITY = references.GRAVITY  #: m/s^2
 SEED_DT = Scheme.dt  #: the seed's fixed step, 1 ms (the shipped scene's step adapts to the flow)
-SEED_PER_CELL = 4  #: the seed's particles per cell, 2 x 2 (the shipped scene: 4 x 4; README, departures)
+SEED_PER_CELL = 4  #: the seed's particles per cell, 2 x 2 (the shipped scene's too)
 SEED_PARTICLES = {"bodies.0.particles_per_cell": SEED_PER_CELL}  #: the :func:`scene` change to the seed's particles
 FREE_FALL = sqrt(2 * GRAVITY * HEIGHT)  #: the column's free-fall speed, the flow's largest, m/s
 AUTO_SOUND_SPEED = 10 * FREE_FALL  #: the weakly compressible practice's artificial sound speed, m/s
@@ -94,8 +94,7 @@ def scene(changes: Mapping[str, object] | None = None, files: bool = True, sourc
 
 def seed_setup(dt: float = SEED_DT) -> dict[str, object]:
     """The :func:`scene` changes of the seed's set-up: a fixed step ``dt`` (the seed's 1 ms) and
-    :data:`SEED_PER_CELL` particles per cell (the scene's own step adapts to the flow, over 4 x 4
-    particles per cell)."""
+    :data:`SEED_PER_CELL` particles per cell (the scene's own step adapts to the flow)."""
     return {"time.courant": None, "time.dt": dt, **SEED_PARTICLES}
 
 
