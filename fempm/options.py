@@ -105,8 +105,9 @@ class Scheme:
         surface_aware: the volume correction's density error of both signs deep in the water,
             crowding only along a free surface (:mod:`fempm.density`); False: crowding only, everywhere.
         shifting: the strength ``A`` of the particle shifting after each step (:mod:`fempm.shifting`:
-            the particles deep in the water moved down the gradient of their concentration, by
-            ``A`` times the distance they moved in the step times their disorder); 0: none.
+            particles whose neighbourhood is full move down the gradient of the particles'
+            concentration, relaxing ``A`` times the spacings they moved in the step of their
+            disorder, at most 1.5 times its stiffest mode); 0: none.
         pspg: PSPG stabilisation (method.md: without it the run diverges).
         transfer: how velocity and acceleration go between particles and grid, one of
             :data:`TRANSFERS` (:mod:`fempm.transfer`): ``flip`` (FLIP increments blended with PIC,
