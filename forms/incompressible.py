@@ -65,10 +65,11 @@ def pspg_tau(speed, gravity, dt, h, nu):
 
     the transient, advective and viscous limits, whichever is smallest dominating. Tezduyar's
     transient limit has ``T = dt``: tau, and with it the stabilised problem, then follows the step
-    (Hsu, Bazilevs, Calo, Tezduyar & Hughes 2010 discuss the small steps' side). Under gravity the dam break's wall
-    pressure rose as dt fell, and at large adaptive steps the larger tau slowed the front (README,
-    "Where fempm departs from method.md"). Here the transient time is a fixed fraction of the time
-    gravity takes to move water by a cell, whatever the step; without gravity ``T = dt``.
+    (Hsu, Bazilevs, Calo, Tezduyar & Hughes 2010 discuss the small steps' side). Under gravity the
+    dam break's wall pressure rose as dt fell, and at large adaptive steps the larger tau slowed the
+    front (README, "Where fempm departs from method.md"). Here the transient time is a fixed
+    fraction of the time gravity takes to move water by a cell, whatever the step; without gravity
+    ``T = dt``.
     """
     g = ufl.sqrt(ufl.inner(gravity, gravity))
     rate = ufl.conditional(ufl.gt(g, 0), 2 / TAU_GRAVITY_TIME * ufl.sqrt(g / h), 2 / dt)

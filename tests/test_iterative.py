@@ -47,13 +47,26 @@ def test_iterative_solver_reproduces_the_direct_step():
     lu, lu_solver = _one_step(comm, petsc=linear.DIRECT if comm.size == 1 else None)
     iterative, solver = _one_step(comm, "iterative")
     ksp = solver.ksp
-    assert (ksp.getType(), ksp.getPC().getType()) == ("fgmres", "fieldsplit") and ksp.getIterationNumber() > 2
+    assert (ksp.getType(), ksp.getPC().getType()) == ("gmres", "fieldsplit") and ksp.getIterationNumber() > 2
+    assert ksp.getPCSide() == PETSc.PC.Side.RIGHT  # the true residual, as FGMRES's (every block's solve is fixed)
     assert lu_solver.ksp.getType() == "preonly"
     assert _norm(lu["u"], comm) > 0
-    assert _relative_difference(iterative, lu, comm) <= 1e-8  # measured 8.4e-10
+    # measured 3.6e-9 (one rank), 8.6e-9 (two; 8.4e-10 with PSPG's tau following the step: the first step, at the
+    # scene's largest dt, is worse conditioned now)
+    assert _relative_difference(iterative, lu, comm) <= 1.5e-8
 
 
 @pytest.mark.mpi
+def test_an_inner_krylov_solve_makes_the_iterative_solver_flexible():
+    """A user's inner solve of a block varies the preconditioner: the outer solver is FGMRES then, unless the
+    user names it; the shipped blocks (Jacobi, one multigrid cycle) are fixed, and GMRES keeps half FGMRES's vectors."""
+    assert linear.iterative_options({})["ksp_type"] == "gmres"
+    assert linear.iterative_options({"fieldsplit_u_pc_type": "gamg"})["ksp_type"] == "gmres"
+    inner = linear.iterative_options({"fieldsplit_p_ksp_type": "cg"})
+    assert inner["ksp_type"] == "fgmres" and "ksp_pc_side" not in inner and inner["fieldsplit_p_ksp_type"] == "cg"
+    assert linear.iterative_options({"fieldsplit_p_ksp_type": "cg", "ksp_type": "bcgs"})["ksp_type"] == "bcgs"
+
+
 def test_default_solver_is_exact():
     """One rank: the exact Schur solve, equal to MUMPS LU to round-off, PETSc's LU of S at this size
     (the scene's ~800 free dofs); several ranks: LU (redundant MUMPS)."""
