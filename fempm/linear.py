@@ -29,8 +29,8 @@ named here:
   threshold: the B-spline stencil is wide), the velocity block by its diagonal: it is the lumped
   mass over ``beta dt^2`` plus a viscous part smaller by ``~ 2 mu dt / (rho h^2)``, for which
   Jacobi does as well as a multigrid cycle at a fraction of the cost. The relative tolerance is
-  tight enough that the solution agrees with the direct one to about 1e-8 (``tests/test_iterative.py``);
-  GMRES restarts rarely, since splashes raise the iteration count. Very viscous flows may want
+  tight enough that the solution agrees with the direct one to about 1e-8
+  (``tests/test_iterative.py``); GMRES restarts rarely, since splashes raise the iteration count. Very viscous flows may want
   ``fieldsplit_u_pc_type = "gamg"``; an inner Krylov solve of a block makes the outer solver FGMRES
   (:func:`iterative_options`).
 
@@ -120,13 +120,16 @@ ITERATIVE = {
 
 
 def iterative_options(user: dict) -> dict:
-    """:data:`ITERATIVE` under a user's PETSc options: where these give a block an inner Krylov solve
-    (a ``*_ksp_type`` other than ``preonly``) and leave the outer solver alone, the preconditioner
-    varies from one iteration to the next, and the outer solver is FGMRES, which allows that."""
+    """:data:`ITERATIVE` under a user's PETSc options. Where these give a block an inner Krylov solve
+    (a ``*_ksp_type`` other than ``preonly``) the preconditioner varies from one iteration to the
+    next, and the outer solver is FGMRES, which allows that; where they name the outer solver, it is
+    theirs, preconditioned on its own default side."""
     inner = any(k.endswith("_ksp_type") and str(v) != "preonly" for k, v in user.items() if k != "ksp_type")
-    if inner and "ksp_type" not in user:
-        return {**{k: v for k, v in ITERATIVE.items() if k != "ksp_pc_side"}, "ksp_type": "fgmres", **user}
+    if inner or "ksp_type" in user:
+        flexible = {k: v for k, v in ITERATIVE.items() if k != "ksp_pc_side"}
+        return {**flexible, "ksp_type": "fgmres", **user}
     return {**ITERATIVE, **user}
+
 
 class SolveFailed(RuntimeError):
     """The linear solve did not succeed (singular factorisation, no convergence, NaN)."""

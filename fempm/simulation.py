@@ -47,7 +47,10 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     The scene's PETSc options are checked first (see :func:`fempm.linear.check_options`).
     """
     fluid, sv = scene.fluid, scene.solver
-    petsc = {**linear.direct_options(comm), **sv.petsc} if sv.linear == "direct" else linear.iterative_options(sv.petsc)
+    if sv.linear == "direct":
+        petsc = {**linear.direct_options(comm), **sv.petsc}
+    else:
+        petsc = linear.iterative_options(sv.petsc)
     linear.set_options(petsc)
     linear.check_options(comm, list(sv.petsc), FIELDS)
     basis, particles = build_material(scene, comm)
