@@ -28,10 +28,11 @@ METHODS = ("MPM", "FEM-only")
 
 
 def filled_solver(method: str, basis: Basis, physics: Physics, scheme: Scheme, density: float = 1.0,
-                  per_cell: int = 2, body: Rectangle | None = None):
+                  per_cell: int = 2, body: Rectangle | None = None, solver_type=ImplicitSolver):
     """The solver of a closed-domain case: ``"FEM-only"`` (:class:`~fempm.eulerian.EulerianSolver`
-    on the whole grid) or ``"MPM"`` (:class:`~fempm.implicit.ImplicitSolver` with
-    ``per_cell x per_cell`` particles per cell at rest in ``body``, by default the whole grid)."""
+    on the whole grid) or ``"MPM"`` (``solver_type``, by default :class:`~fempm.implicit.ImplicitSolver`,
+    from the basis, particles, physics and scheme, with ``per_cell x per_cell`` particles per cell at
+    rest in ``body``, by default the whole grid)."""
     if method == "FEM-only":
         return EulerianSolver(basis, physics, scheme, density=density)
     if method != "MPM":
@@ -39,7 +40,7 @@ def filled_solver(method: str, basis: Basis, physics: Physics, scheme: Scheme, d
     grid = basis.grid
     fluid = Particles(grid)
     fluid.seed(body or Rectangle(grid.lower, grid.upper), per_cell=per_cell, density=density)
-    return ImplicitSolver(basis, fluid, physics, scheme)
+    return solver_type(basis, fluid, physics, scheme)
 
 
 @dataclass

@@ -198,7 +198,21 @@ WHOLLY_DEEP = 1 - 1e-9
 def continuity(s):
     """Continuity with the volume correction (method.md eq. 3, after Asai et al. 2012)::
 
-        int q (J* div_x v_{n+1} - (alpha / rho) max(rho~ - rho (1 + CROWDING_TOLERANCE), 0) / dt) dx
+        int q volume_rate(v_{n+1}) dx
+
+    (see :func:`volume_rate`).
+    """
+    du, _ = ufl.split(s.grid("U"))
+    _, q = s.test
+    v_new = newmark.velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), s.constant("dt"),
+                             s.constant("beta"), s.constant("gamma"))
+    return q * volume_rate(s, v_new) * s.dx
+
+
+def volume_rate(s, v_new):
+    """The rate the continuity asks of ``v_{n+1}`` (method.md eq. 3, after Asai et al. 2012)::
+
+        J* div_x v_{n+1} - (alpha / rho) max(rho~ - rho (1 + CROWDING_TOLERANCE), 0) / dt
 
     ``rho~`` is the smoothed density of eq. (2), ``rho~_i = sum_p W_i(x_p) m_p``,
     ``W_i = N_i / int N_i dx``: where particles crowd (rho~ > rho) the correction asks
@@ -212,7 +226,7 @@ def continuity(s):
     density by that much, and an expansion asked for every such stir, never taken back,
     swelled a column at rest.
 
-    With ``surface_aware`` = 1 instead ``int q (div v_{n+1} - alpha e / dt) dx`` with, at a
+    With ``surface_aware`` = 1 instead ``J* div_x v_{n+1} - alpha e / dt`` with, at a
     particle whose functions all lie deep in the water (the grid function ``deep``,
     ``fempm.density.DeepWater``, interpolates to 1 there), both signs ``e = rho~ / rho - 1``, and
     crowding only ``e = max(rho~ / rho - 1 - CROWDING_TOLERANCE, 0)`` in the band along a free
@@ -220,21 +234,18 @@ def continuity(s):
 
     The divergence is the end-of-step one, ``J* div_x`` (see :func:`end_map`).
     """
-    du, _ = ufl.split(s.grid("U"))
-    _, q = s.test
-    dt, beta, gamma, alpha = s.constant("dt"), s.constant("beta"), s.constant("gamma"), s.constant("alpha")
+    dt, alpha = s.constant("dt"), s.constant("alpha")
     rho = s.particle("density")
-    v_new = newmark.velocity(du, s.grid("grid_velocity"), s.grid("grid_acceleration"), dt, beta, gamma)
     expansion = end_divergence(s, v_new)
     if not switched_on(alpha):
-        return q * expansion * s.dx
+        return expansion
     if switched_on(s.constant("surface_aware")):
         excess = s.grid("smoothed_density") / rho - 1
         error = ufl.conditional(ufl.ge(s.grid("deep"), WHOLLY_DEEP), excess,
                                 ufl.max_value(excess - CROWDING_TOLERANCE, 0))
-        return q * (expansion - alpha * error / dt) * s.dx
+        return expansion - alpha * error / dt
     crowding = ufl.max_value(s.grid("smoothed_density") - rho * (1 + CROWDING_TOLERANCE), 0)
-    return q * (expansion - alpha / rho * crowding / dt) * s.dx
+    return expansion - alpha / rho * crowding / dt
 
 
 def pspg(s):
@@ -255,13 +266,22 @@ def pspg(s):
     alternates in sign from step to step, and fed into the pressure it grows a
     sign-alternating pressure (README, "Where fempm departs from method.md").
     """
-    du, p = ufl.split(s.grid("U"))
     _, q = s.test
     if not switched_on(s.constant("pspg")):
         return 0
     rho, v_p = s.particle("density"), s.particle("velocity")
+    tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), s.constant("gravity"), s.constant("dt"), s.h, s.constant("mu") / rho)
+    return s.constant("pspg") * tau / rho * ufl.inner(ufl.grad(q), momentum_residual(s)) * s.dx
+
+
+def momentum_residual(s):
+    """The strong momentum residual PSPG tests (see :func:`pspg`)::
+
+        rho (v_{n+1} - v_n) / dt + grad p - rho g - div(2 mu eps(v_{n+1}))  [ + rho (v_n . grad) v_{n+1} ]
+    """
+    du, p = ufl.split(s.grid("U"))
+    rho = s.particle("density")
     dt, beta, mu = s.constant("dt"), s.constant("beta"), s.constant("mu")
-    tau = pspg_tau(ufl.sqrt(ufl.inner(v_p, v_p)), s.constant("gravity"), dt, s.h, mu / rho)
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, s.constant("gamma"))
     residual = rho * (v_new - v_n) / dt + ufl.grad(p) - rho * s.constant("gravity")
@@ -270,7 +290,7 @@ def pspg(s):
     carried = convection(s, v_new)
     if carried is not None:
         residual = residual + rho * carried
-    return s.constant("pspg") * tau / rho * ufl.inner(ufl.grad(q), residual) * s.dx
+    return residual
 
 
 #: PSPG's residual leaves its viscous part out below this diffusion number nu dt / h^2 (see pspg)

@@ -72,7 +72,7 @@ FORMS_MISTAKES = [
      r"forms file '.*', line \d+, in residual \(return s.test\[0\] \* s.dx\): ValueError: Can only integrate scalar "
      r"expressions. The integrand is a tensor expression with value shape \(2,\)"),
     ("dot of a vector and a scalar",
-     ("    return q * expansion * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"),
+     ("    return q * volume_rate(s, v_new) * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"),
      r"forms file '.*', line \d+, in continuity \(return ufl.dot\(v_new, q\) \* s.dx\): ValueError: Dot product "
      r"requires non-scalar arguments, got arguments with ranks 1 and 0."),
     ("forgotten measure",
@@ -116,7 +116,7 @@ def _in_process(main, argv, status):
 
 def test_the_command_reports_a_forms_mistake_with_status_2_and_an_edited_switch_works(tmp_path):
     forms = tmp_path / "forms.py"
-    forms.write_text(FORMS.replace("    return q * expansion * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"))
+    forms.write_text(FORMS.replace("    return q * volume_rate(s, v_new) * s.dx\n", "    return ufl.dot(v_new, q) * s.dx\n"))
     scene = tmp_path / "scene.toml"
     scene.write_text(DAMBREAK.replace("volume_correction = 0.1 ", "volume_correction = 0.0 "))
     status, out, err = fempm("check", scene, "--forms", forms)

@@ -17,6 +17,7 @@ from fempm import diagnostics
 from fempm.bases import BASES
 from fempm.cases.vortices import VARIANTS
 from fempm.grid import Grid
+from fempm.implicit import ImplicitSolver
 from fempm.options import Physics, Scheme
 from fempm.particles import Rectangle
 from fempm.references import DAMBREAK_COLUMN_WIDTH
@@ -28,14 +29,15 @@ WIDTH = DAMBREAK_COLUMN_WIDTH  #: L, m
 HEIGHT = 2 * WIDTH  #: the water's depth, m
 
 
-def rest(variant: str, end: float, basis: str = "bspline", dt: float = 1e-3, comm=MPI.COMM_WORLD) -> dict:
-    """Hold the column ``end`` seconds: ``volume`` (surface height over its start, less 1), the largest
-    particle speed at the end (``speed``) and over the run (``peak``), m/s; ``status``, ``cause``,
-    ``t``, ``wall``."""
+def rest(variant: str, end: float, basis: str = "bspline", dt: float = 1e-3, comm=MPI.COMM_WORLD,
+         solver_type=ImplicitSolver, height: float = HEIGHT) -> dict:
+    """Hold the column (``height`` deep) ``end`` seconds: ``volume`` (surface height over its start, less 1),
+    the largest particle speed at the end (``speed``) and over the run (``peak``), m/s; ``status``,
+    ``cause``, ``t``, ``wall`` (``solver_type``: see :func:`fempm.verification.filled_solver`)."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (WIDTH, 4 * WIDTH), (10, 40))
     physics = Physics(viscosity=1.0e-3, gravity=(0.0, -9.81))
     solver = filled_solver("MPM", BASES[basis](grid), physics, Scheme(dt=dt, **VARIANTS[variant]), density=1000.0,
-                           body=Rectangle((0.0, 0.0), (WIDTH, HEIGHT)))
+                           body=Rectangle((0.0, 0.0), (WIDTH, height)), solver_type=solver_type)
     water = solver.particles
     start = diagnostics.surface_height(water)
     peak = [0.0]

@@ -47,10 +47,11 @@ CENTRE = np.array([0.5, 0.5])
 
 def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
                comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha, per_cell: int = 2,
-               pspg: bool = Scheme.pspg, shifting: float = Scheme.shifting) -> ImplicitSolver:
+               pspg: bool = Scheme.pspg, shifting: float = Scheme.shifting, solver_type=ImplicitSolver) -> ImplicitSolver:
     """The unit slip box filled with ``per_cell`` x ``per_cell`` particles per cell at the given
     velocity and acceleration (functions of the positions returning ``(values (n, 2), gradients
-    (n, 2, 2))``), with the volume correction ``alpha``, PSPG on or off and particle ``shifting``."""
+    (n, 2, 2))``), with the volume correction ``alpha``, PSPG on or off and particle ``shifting``;
+    ``solver_type`` makes the solver from the basis, particles, physics and scheme."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
     water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=per_cell, density=RHO)
@@ -61,7 +62,7 @@ def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceler
         water[name][:] = value
         if scheme.transfer != "flip":
             water[f"affine_{name}"][:] = grad
-    return ImplicitSolver(BASES[basis](grid), water, Physics(viscosity=RHO * nu, gravity=(0.0, 0.0)), scheme)
+    return solver_type(BASES[basis](grid), water, Physics(viscosity=RHO * nu, gravity=(0.0, 0.0)), scheme)
 
 
 def kinetic_energy(particles) -> float:
@@ -106,15 +107,16 @@ def _window_losses(t: np.ndarray, ke: np.ndarray, viscous: float, windows: int) 
 
 def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.25, U: float = 1.0,
                  basis: str = "bspline", per_cell: int = 2, pspg: bool = Scheme.pspg,
-                 shifting: float = Scheme.shifting) -> dict:
+                 shifting: float = Scheme.shifting, solver_type=ImplicitSolver) -> dict:
     """The Taylor-Green vortex to ``end``: ``numerical`` is the fitted ``-d ln KE/dt - 4 pi^2 nu``.
 
     Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``windows`` (the loss over each of
     :data:`WINDOWS` equal spans), ``ke_end`` and ``exact_end`` (KE over its start), ``status``,
-    ``cause``, ``t``, ``wall``, and the run's ``per_cell``, ``pspg`` and ``shifting``.
+    ``cause``, ``t``, ``wall``, and the run's ``per_cell``, ``pspg`` and ``shifting`` (``solver_type``: see
+    :func:`box_solver`).
     """
     solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha=0.0,
-                        per_cell=per_cell, pspg=pspg, shifting=shifting)
+                        per_cell=per_cell, pspg=pspg, shifting=shifting, solver_type=solver_type)
     times, energy = [0.0], [kinetic_energy(solver.particles)]
 
     def each(s):
@@ -193,11 +195,12 @@ def gresho_measures(solver) -> dict:
 
 
 def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2,
-           shifting: float = Scheme.shifting) -> dict:
+           shifting: float = Scheme.shifting, solver_type=ImplicitSolver) -> dict:
     """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell, particle ``shifting``):
     relative changes of kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end
-    (``profile``) and at the start (``profile0``)."""
-    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, per_cell=per_cell, shifting=shifting)
+    (``profile``) and at the start (``profile0``); ``solver_type``: see :func:`box_solver`."""
+    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, per_cell=per_cell, shifting=shifting,
+                        solver_type=solver_type)
     start = gresho_measures(solver)
     run = advance(solver, end)
     final = gresho_measures(solver)

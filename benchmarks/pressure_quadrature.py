@@ -1,0 +1,267 @@
+"""A study: the pressure's terms integrated at fixed Gauss points instead of at the particles.
+
+The particles are the step's quadrature points, and the open accuracy defects point at that
+quadrature of the pressure's terms: Taylor-Green's loss grows with the particles' disorder, so
+that it rises under refinement; a column at rest grows a mode in which corner particles pair
+under the hydrostatic pressure (README, "Measured"). Here the pressure's work, with gravity (which
+balances it at rest), and the continuity are integrated at the 3 x 3 Gauss points of the cells
+around the water, weighted by a share of water, and the particles keep the inertia, the viscous
+stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weightings
+(:data:`WEIGHTINGS`):
+
+* ``smooth``: the smoothed fraction of water ``rho~ / rho`` (eq. 2) at the point, clipped to 1,
+  with PSPG's residual that of the weighted terms, ``grad(wet p) / wet``;
+* ``smooth, PSPG uncorrected``: the same with PSPG's residual as shipped;
+* ``sharp``: ``clip(2 rho~ / rho - 1/2, 0, 1)``, a surface band half as wide, PSPG corrected;
+* ``cells``: 1 in a cell deep in the water (``fempm.density.DEEP`` at its centre), else the share
+  of the cell the particles' volumes fill; PSPG as shipped.
+
+Each against the shipped particle quadrature (``particles``) on the dam break's front (to
+t = 0.28 s, against interFoam 160²), Taylor-Green's loss (nu = 1e-6, U dt / h = 0.4, to t = 0.25,
+64² and 128²), the Gresho vortex (64², to t = 3) and the dam break's column at rest (10 x 40 cells,
+1 ms to 14 s and 10 ms to 15 s; and 19.5 cells deep, its surface half-way up a cell, 1 ms to 5 s and
+10 ms to 15 s). Serial. Results go to ``docs/pressure-quadrature.json``, the page
+to ``docs/pressure-quadrature.md``::
+
+    python benchmarks/pressure_quadrature.py                         # all (the columns take longest)
+    python benchmarks/pressure_quadrature.py --case column_1ms --weighting cells
+    python benchmarks/pressure_quadrature.py --quick                 # short runs, nothing stored
+    python benchmarks/pressure_quadrature.py --page-only             # the page from the stored results
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import functools
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+
+import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
+import pages
+from fempm import diagnostics, references
+from fempm.cases import column, dambreak, vortices
+from fempm.density import DEEP
+from fempm.implicit import ImplicitSolver
+from fempm.options import Scheme
+from fempm.particles import Particles
+from fempm.simulation import build_solver
+from fempm.verification import advance
+
+FORMS = Path(__file__).resolve().parent / "forms" / "gauss_pressure.py"
+RESULTS = pages.ROOT / "docs" / "pressure-quadrature.json"
+PAGE = pages.ROOT / "docs" / "pressure-quadrature.md"
+_GAUSS = np.array([0.5 - 0.5 * np.sqrt(0.6), 0.5, 0.5 + 0.5 * np.sqrt(0.6)])
+_GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
+#: a cell's 3 x 3 Gauss points in units of its size, and their weights (summing to 1)
+GAUSS_POINTS = np.stack(np.meshgrid(_GAUSS, _GAUSS, indexing="ij"), axis=-1).reshape(-1, 2)
+GAUSS_WEIGHTS = np.outer(_GAUSS_WEIGHTS, _GAUSS_WEIGHTS).ravel()
+
+
+@dataclasses.dataclass(frozen=True)
+class Weighting:
+    """How a Gauss point's share of water is taken: ``smooth`` (the sharpened smoothed fraction,
+    ``clip(sharpness rho~ / rho - (sharpness - 1) / 2, 0, 1)``) or ``cells``; ``corrected``: PSPG's
+    residual is the weighted terms' (see the forms)."""
+
+    wet: str
+    sharpness: float = 1.0
+    corrected: bool = False
+    thinned: bool = False  #: at most the smoothed fraction itself: the pressure's force scales with thinning water
+
+
+WEIGHTINGS = {
+    "particles": None,  # the shipped forms and quadrature
+    "smooth": Weighting("smooth", corrected=True),
+    "smooth, PSPG uncorrected": Weighting("smooth"),
+    "sharp": Weighting("smooth", sharpness=2.0, corrected=True),
+    "sharp, thinned": Weighting("smooth", sharpness=2.0, corrected=True, thinned=True),
+    "cells": Weighting("cells"),
+}
+
+
+class GaussPressure(ImplicitSolver):
+    """The implicit MPM with the pressure's terms at Gauss points weighted by ``weighting`` (module)."""
+
+    def __init__(self, weighting: Weighting, basis, particles, physics=None, scheme=None, controls=None):
+        self.weighting = weighting
+        fields = {"material": 1.0, "wet": 0.0, "sharpness": weighting.sharpness,
+                  "correction": float(weighting.corrected)}
+        for name, value in fields.items():
+            if name not in particles.fields:
+                particles.add_field(name)
+            particles[name][:] = value
+        super().__init__(basis, particles, physics, dataclasses.replace(scheme or Scheme(), forms=str(FORMS)),
+                         controls)
+
+    def quadrature_points(self) -> Particles:
+        """The particles and the Gauss points of the cells holding particles and their neighbours."""
+        p, g = self.particles, self.grid
+        cells = self._cells_around_water()
+        sizes = g.cell_sizes(cells)
+        offsets = GAUSS_POINTS[None] * sizes[:, None]  # (cells, 9, 2)
+        x = (g.cell_origin(cells)[:, None] + offsets).reshape(-1, 2)
+        volume = (GAUSS_WEIGHTS[None] * np.prod(sizes, axis=1)[:, None]).ravel()
+        point_cells = np.repeat(cells, len(GAUSS_WEIGHTS))
+        wet = self._wet(cells, point_cells, offsets.reshape(-1, 2) / g.h)
+        points = Particles(g)
+        for name, values in p.fields.items():
+            if name not in points.fields:
+                points.add_field(name, values.shape[1:])
+        carried = {name: values for name, values in p.fields.items()
+                   if name not in ("x", "volume", "mass", "id", "density")}
+        points.add_points(p.x, p["volume"], density=p["density"], **carried)
+        points.add_points(x, volume, density=self._reference_density, material=0.0, wet=wet, sharpness=1.0)
+        return points
+
+    def _cells_around_water(self) -> np.ndarray:
+        g = self.grid
+        occupied = np.zeros(g.num_cells, dtype=bool)
+        occupied[self.particles.cell] = True
+        rows = occupied.reshape(g.ny, g.nx)
+        grown = rows.copy()
+        grown[1:] |= rows[:-1]
+        grown[:-1] |= rows[1:]
+        around = grown.copy()
+        around[:, 1:] |= grown[:, :-1]
+        around[:, :-1] |= grown[:, 1:]
+        return np.flatnonzero(around.ravel())
+
+    def _wet(self, cells: np.ndarray, point_cells: np.ndarray, xi: np.ndarray) -> np.ndarray:
+        """The Gauss points' shares of water (``xi``: their places in their cells, in cell sizes h)."""
+        g, w = self.grid, self.weighting
+        phi = self.system.fields["smoothed_density"].values[:, 0] / self._reference_density
+        if w.wet == "smooth":
+            values = self.basis.tabulate(point_cells, xi, order=0)[:, 0, :]
+            at_points = np.einsum("pl,pl->p", values, phi[self.system.scalar_space.local_functions_of_cells(point_cells)])
+            wet = np.clip(w.sharpness * at_points - (w.sharpness - 1) / 2, 0.0, 1.0)
+            return np.minimum(wet, at_points) if w.thinned else wet
+        filled = np.bincount(self.particles.cell, self.particles["volume"], minlength=g.num_cells)
+        share = np.minimum(filled / np.prod(g.cell_sizes(np.arange(g.num_cells)), axis=1), 1.0)
+        deep = self._deep_water
+        centre = np.einsum("cl,cl->c", deep.centre_values, phi[deep.cell_functions])
+        share[g.owned_cells[centre >= DEEP]] = 1.0
+        return np.repeat(share[cells], len(GAUSS_WEIGHTS))
+
+
+def solver_type(weighting: str):
+    """The solver class (or factory) of a weighting, as the cases take it."""
+    w = WEIGHTINGS[weighting]
+    return ImplicitSolver if w is None else functools.partial(GaussPressure, w)
+
+
+# -- the cases: each returns a dict of its measures ----------------------------------------------
+def dambreak_front(weighting: str, quick: bool) -> dict:
+    end = 0.28
+    solver = build_solver(dambreak.scene({"time.end": end, "output.progress": False}, files=False))
+    if WEIGHTINGS[weighting] is not None:
+        solver = GaussPressure(WEIGHTINGS[weighting], solver.basis, solver.particles, solver.physics, solver.scheme,
+                               solver.controls)
+    history = [(0.0, diagnostics.front_position(solver.particles))]
+    run = advance(solver, end, lambda s: history.append((s.time, diagnostics.front_position(s.particles))))
+    h = np.array(history)
+    front = references.dimensionless_front(h[:, 0], h[:, 1])
+    return {"front": references.front_difference(front, references.interfoam_front(160)), "status": run.status,
+            "cause": run.cause, "t": run.time, "wall": run.wall, "steps": run.steps}
+
+
+def taylor_green(cells: int):
+    def run(weighting: str, quick: bool) -> dict:
+        n = cells // 2 if quick else cells
+        return vortices.taylor_green("affine-FLIP", n, 0.4 / n, 1e-6, shifting=vortices.SHIFTING,
+                                     solver_type=solver_type(weighting))
+    return run
+
+
+def gresho(weighting: str, quick: bool) -> dict:
+    return vortices.gresho("affine-FLIP", 64, 0.4 / 64, 0.5 if quick else 3.0, shifting=vortices.SHIFTING,
+                           solver_type=solver_type(weighting))
+
+
+def column_at_rest(dt: float, end: float, cells: float = 20.0):
+    """The column, ``cells`` cells deep (20: the dam break's; 19.5: its surface half-way up a cell)."""
+    def run(weighting: str, quick: bool) -> dict:
+        return column.rest("affine-FLIP", end / 7 if quick else end, dt=dt, solver_type=solver_type(weighting),
+                           height=cells * column.WIDTH / 10)
+    return run
+
+
+CASES = {
+    "dambreak": dambreak_front,
+    "taylor_green_64": taylor_green(64),
+    "taylor_green_128": taylor_green(128),
+    "gresho": gresho,
+    "column_1ms": column_at_rest(1e-3, 14.0),
+    "column_10ms": column_at_rest(1e-2, 15.0),
+    "column_mid_cell_1ms": column_at_rest(1e-3, 5.0, cells=19.5),
+    "column_mid_cell_10ms": column_at_rest(1e-2, 15.0, cells=19.5),
+}
+
+
+# -- the page ------------------------------------------------------------------------------------
+def _stopped(r: dict) -> str:
+    return "" if r["status"] == "completed" else f" (stopped at {r['t']:.3g} s: {r['cause'].split(':')[0]})"
+
+
+def _cell(case: str, r: dict | None) -> str:
+    if r is None:
+        return "not run"
+    if case == "dambreak":
+        return f"{100 * r['front']:.2f} %" + _stopped(r)
+    if case.startswith("taylor_green"):
+        return f"{r['numerical']:.2e}" + _stopped(r)
+    if case == "gresho":
+        return f"{100 * r['ke']:+.2f} % / {100 * r['L']:+.3f} %" + _stopped(r)
+    return f"{r['speed']:.1e} / {r['peak']:.1e} / {100 * r['volume']:+.3f} %" + _stopped(r)
+
+
+def write_page(data: dict):
+    head = ["weighting", "dam-break front vs interFoam 160²", "Taylor–Green loss, 64²", "128²",
+            "Gresho, 64², t = 3: KE / L", "column, 1 ms, 14 s: speed at the end / largest (m/s) / volume",
+            "column, 10 ms, 15 s: the same", "column 19.5 cells deep, 1 ms, 5 s", "the same, 10 ms, 15 s"]
+    rows = [[name] + [_cell(case, data.get(name, {}).get(case)) for case in CASES] for name in WEIGHTINGS]
+    made = data.get("made", {})
+    pages.write(PAGE, pages.fill("pressure-quadrature.md", table=pages.table(head, rows), **{
+        key: made.get(key, "?") for key in ("date", "commit", "machine", "load")}))
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--case", nargs="+", choices=tuple(CASES), default=list(CASES))
+    parser.add_argument("--weighting", nargs="+", choices=tuple(WEIGHTINGS), default=list(WEIGHTINGS))
+    parser.add_argument("--quick", action="store_true", help="short runs, printed and not stored")
+    parser.add_argument("--page-only", action="store_true", help="rewrite the page from the stored results")
+    args = parser.parse_args(argv)
+    if args.page_only:
+        write_page(json.loads(RESULTS.read_text()))
+        return 0
+    if MPI.COMM_WORLD.size > 1:
+        print("pressure_quadrature.py runs serially", file=sys.stderr)
+        return 2
+    made = {**{k: v for k, v in pages.provenance().items() if k != "node"},
+            "load": ", ".join(f"{x:.2f}" for x in os.getloadavg())}
+    new = {}
+    for case in args.case:
+        for name in args.weighting:
+            start = time.time()
+            r = CASES[case](name, args.quick)
+            print(f"{case:18s} {name:26s} {_cell(case, r)}  ({time.time() - start:.0f} s)", flush=True)
+            new.setdefault(name, {})[case] = r
+    if not args.quick:  # merged into the stored results as they are now (another invocation may have added)
+        data = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
+        for name, cases in new.items():
+            data.setdefault(name, {}).update(cases)
+        data["made"] = made
+        pages.write(RESULTS, json.dumps(data, indent=1))
+        write_page(data)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
