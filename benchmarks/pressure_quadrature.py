@@ -14,10 +14,13 @@ stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weighti
 * ``smooth, PSPG uncorrected``: the same with PSPG's residual as shipped;
 * ``sharp``: ``clip(2 rho~ / rho - 1/2, 0, 1)``, a surface band half as wide, PSPG corrected;
 * ``cells``: 1 in a cell deep in the water (``fempm.density.DEEP`` at its centre), else the share
-  of the cell the particles' volumes fill; PSPG as shipped.
+  of the cell the particles' volumes fill; PSPG as shipped;
+* ``sharp`` variants: at most the smoothed fraction itself (the pressure's force follows thinning
+  water) everywhere, or deep in the water only (blended by the grid's deep functions), or there only
+  below 0.9; and the inertia lumped at the Gauss points instead of the particles.
 
 Each against the shipped particle quadrature (``particles``) on the dam break's front (to
-t = 0.28 s, against interFoam 160²), Taylor-Green's loss (nu = 1e-6, U dt / h = 0.4, to t = 0.25,
+t = 0.28 s, against interFoam 160²), its right-wall gauges (``benchmarks/wall_pressure.py``), Taylor-Green's loss (nu = 1e-6, U dt / h = 0.4, to t = 0.25,
 64² and 128²), the Gresho vortex (64², to t = 3) and the dam break's column at rest (10 x 40 cells,
 1 ms to 14 s and 10 ms to 15 s; and 19.5 cells deep, its surface half-way up a cell, 1 ms to 5 s and
 10 ms to 15 s). Serial. Results go to ``docs/pressure-quadrature.json``, the page
@@ -45,6 +48,7 @@ from mpi4py import MPI
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 import pages
+import wall_pressure
 from fempm import diagnostics, references
 from fempm.cases import column, dambreak, vortices
 from fempm.density import DEEP
@@ -73,7 +77,11 @@ class Weighting:
     wet: str
     sharpness: float = 1.0
     corrected: bool = False
-    thinned: bool = False  #: at most the smoothed fraction itself: the pressure's force scales with thinning water
+    #: where the share is at most the smoothed fraction itself, so that the pressure's force scales with thinning
+    #: water: "" nowhere, "everywhere", or "deep" (blended by the grid's deep functions, ``fempm.density``)
+    thinned: str = ""
+    thinned_below: float = 1.0  #: the fraction below which the share follows it (at most ``fraction / thinned_below``)
+    gauss_inertia: bool = False  #: the inertia at the Gauss points too (lumped there), not at the particles
 
 
 WEIGHTINGS = {
@@ -81,7 +89,11 @@ WEIGHTINGS = {
     "smooth": Weighting("smooth", corrected=True),
     "smooth, PSPG uncorrected": Weighting("smooth"),
     "sharp": Weighting("smooth", sharpness=2.0, corrected=True),
-    "sharp, thinned": Weighting("smooth", sharpness=2.0, corrected=True, thinned=True),
+    "sharp, thinned": Weighting("smooth", sharpness=2.0, corrected=True, thinned="everywhere"),
+    "sharp, thinned deep in the water": Weighting("smooth", sharpness=2.0, corrected=True, thinned="deep"),
+    "sharp, thinned below 0.9 deep in the water": Weighting("smooth", sharpness=2.0, corrected=True, thinned="deep",
+                                                             thinned_below=0.9),
+    "sharp, inertia at the Gauss points": Weighting("smooth", sharpness=2.0, corrected=True, gauss_inertia=True),
     "cells": Weighting("cells"),
 }
 
@@ -92,7 +104,7 @@ class GaussPressure(ImplicitSolver):
     def __init__(self, weighting: Weighting, basis, particles, physics=None, scheme=None, controls=None):
         self.weighting = weighting
         fields = {"material": 1.0, "wet": 0.0, "sharpness": weighting.sharpness,
-                  "correction": float(weighting.corrected)}
+                  "correction": float(weighting.corrected), "gauss_inertia": float(weighting.gauss_inertia)}
         for name, value in fields.items():
             if name not in particles.fields:
                 particles.add_field(name)
@@ -117,7 +129,8 @@ class GaussPressure(ImplicitSolver):
         carried = {name: values for name, values in p.fields.items()
                    if name not in ("x", "volume", "mass", "id", "density")}
         points.add_points(p.x, p["volume"], density=p["density"], **carried)
-        points.add_points(x, volume, density=self._reference_density, material=0.0, wet=wet, sharpness=1.0)
+        points.add_points(x, volume, density=self._reference_density, material=0.0, wet=wet, sharpness=1.0,
+                          gauss_inertia=float(self.weighting.gauss_inertia))
         return points
 
     def _cells_around_water(self) -> np.ndarray:
@@ -139,9 +152,16 @@ class GaussPressure(ImplicitSolver):
         phi = self.system.fields["smoothed_density"].values[:, 0] / self._reference_density
         if w.wet == "smooth":
             values = self.basis.tabulate(point_cells, xi, order=0)[:, 0, :]
-            at_points = np.einsum("pl,pl->p", values, phi[self.system.scalar_space.local_functions_of_cells(point_cells)])
+            functions = self.system.scalar_space.local_functions_of_cells(point_cells)
+            at_points = np.einsum("pl,pl->p", values, phi[functions])
             wet = np.clip(w.sharpness * at_points - (w.sharpness - 1) / 2, 0.0, 1.0)
-            return np.minimum(wet, at_points) if w.thinned else wet
+            if not w.thinned:
+                return wet
+            thinned = np.minimum(wet, at_points / w.thinned_below)
+            if w.thinned == "everywhere":
+                return thinned
+            deep = np.einsum("pl,pl->p", values, self._deep_water(phi)[functions])
+            return deep * thinned + (1 - deep) * wet
         filled = np.bincount(self.particles.cell, self.particles["volume"], minlength=g.num_cells)
         share = np.minimum(filled / np.prod(g.cell_sizes(np.arange(g.num_cells)), axis=1), 1.0)
         deep = self._deep_water
@@ -156,19 +176,34 @@ def solver_type(weighting: str):
     return ImplicitSolver if w is None else functools.partial(GaussPressure, w)
 
 
+def scene_solver(weighting: str, scene) -> ImplicitSolver:
+    """The solver of a scene with a weighting's quadrature."""
+    solver = build_solver(scene)
+    w = WEIGHTINGS[weighting]
+    return solver if w is None else GaussPressure(w, solver.basis, solver.particles, solver.physics, solver.scheme,
+                                                  solver.controls)
+
+
 # -- the cases: each returns a dict of its measures ----------------------------------------------
 def dambreak_front(weighting: str, quick: bool) -> dict:
     end = 0.28
-    solver = build_solver(dambreak.scene({"time.end": end, "output.progress": False}, files=False))
-    if WEIGHTINGS[weighting] is not None:
-        solver = GaussPressure(WEIGHTINGS[weighting], solver.basis, solver.particles, solver.physics, solver.scheme,
-                               solver.controls)
+    solver = scene_solver(weighting, dambreak.scene({"time.end": end, "output.progress": False}, files=False))
     history = [(0.0, diagnostics.front_position(solver.particles))]
     run = advance(solver, end, lambda s: history.append((s.time, diagnostics.front_position(s.particles))))
     h = np.array(history)
     front = references.dimensionless_front(h[:, 0], h[:, 1])
     return {"front": references.front_difference(front, references.interfoam_front(160)), "status": run.status,
             "cause": run.cause, "t": run.time, "wall": run.wall, "steps": run.steps}
+
+
+def right_wall_gauges(weighting: str, quick: bool) -> dict:
+    """The shipped dam break's right-wall gauges against interFoam 160² (``benchmarks/wall_pressure.py``):
+    noise and mean per probe, 0.3-0.6 s."""
+    result, _ = wall_pressure.run(build=functools.partial(scene_solver, weighting))
+    cause = result["cause"].split(": ", 1)[-1]  # after the run's "stopped at t = ... (step n): "
+    return {"status": result["status"], "cause": cause, "t": result["time"],
+            "probes": {name: {key: probe["fempm"].get(key) for key in ("noise", "mean_vs_interfoam")}
+                       for name, probe in result["probes"].items() if name.startswith("right_")}}
 
 
 def taylor_green(cells: int):
@@ -194,6 +229,7 @@ def column_at_rest(dt: float, end: float, cells: float = 20.0):
 
 CASES = {
     "dambreak": dambreak_front,
+    "gauges": right_wall_gauges,
     "taylor_green_64": taylor_green(64),
     "taylor_green_128": taylor_green(128),
     "gresho": gresho,
@@ -216,13 +252,18 @@ def _cell(case: str, r: dict | None) -> str:
         return f"{100 * r['front']:.2f} %" + _stopped(r)
     if case.startswith("taylor_green"):
         return f"{r['numerical']:.2e}" + _stopped(r)
+    if case == "gauges":
+        probes = r["probes"].values()
+        return (" / ".join(f"{100 * p['noise']:.1f}" for p in probes) + " % (means "
+                + " / ".join(f"{100 * p['mean_vs_interfoam']:+.1f}" for p in probes) + " %)" + _stopped(r))
     if case == "gresho":
         return f"{100 * r['ke']:+.2f} % / {100 * r['L']:+.3f} %" + _stopped(r)
     return f"{r['speed']:.1e} / {r['peak']:.1e} / {100 * r['volume']:+.3f} %" + _stopped(r)
 
 
 def write_page(data: dict):
-    head = ["weighting", "dam-break front vs interFoam 160²", "Taylor–Green loss, 64²", "128²",
+    head = ["weighting", "dam-break front vs interFoam 160²",
+            "right-wall gauges 5 / 14.6 / 29.2 / 58.4 mm: noise (mean vs interFoam 160²)", "Taylor–Green loss, 64²", "128²",
             "Gresho, 64², t = 3: KE / L", "column, 1 ms, 14 s: speed at the end / largest (m/s) / volume",
             "column, 10 ms, 15 s: the same", "column 19.5 cells deep, 1 ms, 5 s", "the same, 10 ms, 15 s"]
     rows = [[name] + [_cell(case, data.get(name, {}).get(case)) for case in CASES] for name in WEIGHTINGS]

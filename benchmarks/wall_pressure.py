@@ -108,10 +108,11 @@ def metrics(t: np.ndarray, s: np.ndarray, window=WINDOW) -> dict:
     return out
 
 
-def run(changes: dict | None = None, end_time: float = WINDOW[1]) -> tuple[dict, dict]:
-    """The dam break with gauges at the interFoam probes: the measures and the histories."""
+def run(changes: dict | None = None, end_time: float = WINDOW[1], build=build_solver) -> tuple[dict, dict]:
+    """The dam break with gauges at the interFoam probes: the measures and the histories (``build``: makes the
+    solver of a scene)."""
     scene = dambreak.scene({"time.end": end_time, "output.progress": False, **(changes or {})}, files=False)
-    solver = build_solver(scene)
+    solver = build(scene)
     gauges = [PressureGauge(name, point) for name, point in probe_points().items()]
     gauges.append(LevelGauge("level_x0.5", 0.5))
     sampler = Sampler(gauges, solver.basis)

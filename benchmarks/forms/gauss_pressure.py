@@ -8,7 +8,8 @@ The step integrates at two kinds of points (``material``: 1 at a particle, 0 at 
 
     int wet (-p J* div_x w - rho g . w) dx_gauss,   int wet q volume_rate(v_{n+1}) dx_gauss
 
-With ``correction`` = 1 at the particles, PSPG's residual is that of these terms' strong form,
+With ``gauss_inertia`` = 1 (at every point) the inertia is lumped at the Gauss points, weighted, instead of
+at the particles. With ``correction`` = 1 at the particles, PSPG's residual is that of these terms' strong form,
 ``grad(wet p) / wet - rho g`` for ``grad p - rho g``, with ``wet`` the grid's sharpened smoothed
 fraction ``clip(sharpness rho~ / rho - (sharpness - 1) / 2, 1e-3, 1)``: a water column at rest then
 leaves PSPG's residual zero.
@@ -36,7 +37,8 @@ def residual(s):
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     a_new = newmark.acceleration(du, v_n, a_n, dt, beta)
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, gamma, a_new=a_new)
-    at_particles = material * rho * ufl.inner(a_new, w) * s.dx_lumped
+    inertia_share = material * (1 - s.particle("gauss_inertia")) + (1 - material) * wet * s.particle("gauss_inertia")
+    at_particles = inertia_share * rho * ufl.inner(a_new, w) * s.dx_lumped
     if switched_on(mu):
         at_particles = at_particles + material * viscous_work(s, mu, v_new, w) * s.dx
     balance = -p * end_divergence(s, w) - rho * ufl.inner(s.constant("gravity"), w)
