@@ -257,14 +257,14 @@ def _cell(case: str, r: dict | None) -> str:
         return (" / ".join(f"{100 * p['noise']:.1f}" for p in probes) + " % (means "
                 + " / ".join(f"{100 * p['mean_vs_interfoam']:+.1f}" for p in probes) + " %)" + _stopped(r))
     if case == "gresho":
-        return f"{100 * r['ke']:+.2f} % / {100 * r['L']:+.3f} %" + _stopped(r)
+        return f"{100 * r['ke']:+.2f} % / {100 * r['L']:+.3f} % / {r['crowding']:.3g}" + _stopped(r)
     return f"{r['speed']:.1e} / {r['peak']:.1e} / {100 * r['volume']:+.3f} %" + _stopped(r)
 
 
 def write_page(data: dict):
     head = ["weighting", "dam-break front vs interFoam 160²",
             "right-wall gauges 5 / 14.6 / 29.2 / 58.4 mm: noise (mean vs interFoam 160²)", "Taylor–Green loss, 64²", "128²",
-            "Gresho, 64², t = 3: KE / L", "column, 1 ms, 14 s: speed at the end / largest (m/s) / volume",
+            "Gresho, 64², t = 3: KE / L / largest ρ̃/ρ", "column, 1 ms, 14 s: speed at the end / largest (m/s) / volume",
             "column, 10 ms, 15 s: the same", "column 19.5 cells deep, 1 ms, 5 s", "the same, 10 ms, 15 s"]
     rows = [[name] + [_cell(case, data.get(name, {}).get(case)) for case in CASES] for name in WEIGHTINGS]
     made = data.get("made", {})

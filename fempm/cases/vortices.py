@@ -198,12 +198,15 @@ def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "
            shifting: float = Scheme.shifting, solver_type=ImplicitSolver) -> dict:
     """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell, particle ``shifting``):
     relative changes of kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end
-    (``profile``) and at the start (``profile0``); ``solver_type``: see :func:`box_solver`."""
+    (``profile``) and at the start (``profile0``), the largest smoothed density over the water's at the
+    end (``crowding``, eq. 2: where particles gather); ``solver_type``: see :func:`box_solver`."""
     solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, per_cell=per_cell, shifting=shifting,
                         solver_type=solver_type)
     start = gresho_measures(solver)
     run = advance(solver, end)
     final = gresho_measures(solver)
+    crowding = solver.grid.comm.allreduce(float(solver.system.fields["smoothed_density"].values.max(initial=0.0)),
+                                          op=MPI.MAX) / RHO
     return {"variant": variant, "cells": cells, "dt": dt, "ke": final["ke"] / start["ke"] - 1,
             "L": final["L"] / start["L"] - 1, "profile": final["profile"], "profile0": start["profile"],
-            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
+            "crowding": crowding, "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
