@@ -214,9 +214,14 @@ def taylor_green(cells: int):
     return run
 
 
-def gresho(weighting: str, quick: bool) -> dict:
-    return vortices.gresho("affine-FLIP", 64, 0.4 / 64, 0.5 if quick else 3.0, shifting=vortices.SHIFTING,
-                           solver_type=solver_type(weighting))
+def gresho(alpha: float):
+    """The Gresho vortex with the volume correction ``alpha``: in a closed box the pressure is pinned at the
+    lower-left function, whose continuity row goes with it, and there a crowding-only correction, which a
+    closed box cannot satisfy, is taken up."""
+    def run(weighting: str, quick: bool) -> dict:
+        return vortices.gresho("affine-FLIP", 64, 0.4 / 64, 0.5 if quick else 3.0, shifting=vortices.SHIFTING,
+                               solver_type=solver_type(weighting), alpha=alpha)
+    return run
 
 
 def column_at_rest(dt: float, end: float, cells: float = 20.0):
@@ -232,7 +237,8 @@ CASES = {
     "gauges": right_wall_gauges,
     "taylor_green_64": taylor_green(64),
     "taylor_green_128": taylor_green(128),
-    "gresho": gresho,
+    "gresho": gresho(Scheme.alpha),
+    "gresho_uncorrected": gresho(0.0),
     "column_1ms": column_at_rest(1e-3, 14.0),
     "column_10ms": column_at_rest(1e-2, 15.0),
     "column_mid_cell_1ms": column_at_rest(1e-3, 5.0, cells=19.5),
@@ -256,7 +262,7 @@ def _cell(case: str, r: dict | None) -> str:
         probes = r["probes"].values()
         return (" / ".join(f"{100 * p['noise']:.1f}" for p in probes) + " % (means "
                 + " / ".join(f"{100 * p['mean_vs_interfoam']:+.1f}" for p in probes) + " %)" + _stopped(r))
-    if case == "gresho":
+    if case.startswith("gresho"):
         return f"{100 * r['ke']:+.2f} % / {100 * r['L']:+.3f} % / {r['crowding']:.3g}" + _stopped(r)
     return f"{r['speed']:.1e} / {r['peak']:.1e} / {100 * r['volume']:+.3f} %" + _stopped(r)
 
@@ -264,7 +270,7 @@ def _cell(case: str, r: dict | None) -> str:
 def write_page(data: dict):
     head = ["weighting", "dam-break front vs interFoam 160²",
             "right-wall gauges 5 / 14.6 / 29.2 / 58.4 mm: noise (mean vs interFoam 160²)", "Taylor–Green loss, 64²", "128²",
-            "Gresho, 64², t = 3: KE / L / largest ρ̃/ρ", "column, 1 ms, 14 s: speed at the end / largest (m/s) / volume",
+            "Gresho, 64², t = 3: KE / L / largest ρ̃/ρ", "the same, without the volume correction (α = 0)", "column, 1 ms, 14 s: speed at the end / largest (m/s) / volume",
             "column, 10 ms, 15 s: the same", "column 19.5 cells deep, 1 ms, 5 s", "the same, 10 ms, 15 s"]
     rows = [[name] + [_cell(case, data.get(name, {}).get(case)) for case in CASES] for name in WEIGHTINGS]
     made = data.get("made", {})

@@ -195,13 +195,13 @@ def gresho_measures(solver) -> dict:
 
 
 def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2,
-           shifting: float = Scheme.shifting, solver_type=ImplicitSolver) -> dict:
+           shifting: float = Scheme.shifting, solver_type=ImplicitSolver, alpha: float = Scheme.alpha) -> dict:
     """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell, particle ``shifting``):
     relative changes of kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end
     (``profile``) and at the start (``profile0``), the largest smoothed density over the water's at the
-    end (``crowding``, eq. 2: where particles gather); ``solver_type``: see :func:`box_solver`."""
-    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, per_cell=per_cell, shifting=shifting,
-                        solver_type=solver_type)
+    end (``crowding``, eq. 2: where particles gather); ``solver_type``, ``alpha``: see :func:`box_solver`."""
+    solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, alpha=alpha, per_cell=per_cell,
+                        shifting=shifting, solver_type=solver_type)
     start = gresho_measures(solver)
     run = advance(solver, end)
     final = gresho_measures(solver)
