@@ -12,7 +12,8 @@ stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weighti
 * ``smooth``: the smoothed fraction of water ``rho~ / rho`` (eq. 2) at the point, clipped to 1,
   with PSPG's residual that of the weighted terms, ``grad(wet p) / wet``;
 * ``smooth, PSPG uncorrected``: the same with PSPG's residual as shipped;
-* ``sharp``: ``clip(2 rho~ / rho - 1/2, 0, 1)``, a surface band half as wide, PSPG corrected;
+* ``sharp``: ``clip(2 rho~ / rho - 1/2, 0, 1)``, a surface band half as wide, PSPG corrected (``sharper``:
+  ``clip(2.5 rho~ / rho - 3/4, 0, 1)``);
 * ``cells``: 1 in a cell deep in the water (``fempm.density.DEEP`` at its centre), else the share
   of the cell the particles' volumes fill; PSPG as shipped;
 * ``sharp`` variants: at most the smoothed fraction itself (the pressure's force follows thinning
@@ -89,6 +90,7 @@ WEIGHTINGS = {
     "smooth": Weighting("smooth", corrected=True),
     "smooth, PSPG uncorrected": Weighting("smooth"),
     "sharp": Weighting("smooth", sharpness=2.0, corrected=True),
+    "sharper (2.5)": Weighting("smooth", sharpness=2.5, corrected=True),
     "sharp, thinned": Weighting("smooth", sharpness=2.0, corrected=True, thinned="everywhere"),
     "sharp, thinned deep in the water": Weighting("smooth", sharpness=2.0, corrected=True, thinned="deep"),
     "sharp, thinned below 0.9 deep in the water": Weighting("smooth", sharpness=2.0, corrected=True, thinned="deep",
