@@ -23,10 +23,11 @@ from fempm.forms.incompressible import (end_divergence, momentum_residual, pspg_
 
 
 def grid_wet(s):
-    """The smoothed fraction of water, sharpened: ``clip(k rho~ / rho - (k - 1) / 2, 1e-3, 1)``."""
+    """The smoothed fraction of water, sharpened: ``clip(k rho~ / rho - c, 1e-3, 1)``, ``c`` the particles' ``offset``
+    (``(k - 1) / 2``, or the conserving one of the study's ``conserved`` weighting)."""
     k = s.particle("sharpness")
     phi = s.grid("smoothed_density") / s.constant("density")
-    return ufl.max_value(ufl.min_value(k * phi - (k - 1) / 2, 1), 1.0e-3)
+    return ufl.max_value(ufl.min_value(k * phi - s.particle("offset"), 1), 1.0e-3)
 
 
 def residual(s):
