@@ -23,6 +23,7 @@ from fempm import diagnostics, transfer
 from fempm.bases import Basis
 from fempm.density import DeepWater
 from fempm.options import SIDES, Controls, Physics, Scheme
+from fempm.pressure_points import GaussPoints
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.region import MatrixRegion
@@ -115,8 +116,14 @@ class ImplicitSolver(Stepper):
         self.walls, self.velocity, self.pressure = self.system.walls, self.system.velocity, self.system.pressure
         self.region = MatrixRegion(self.system.space, controls.matrix_region, particles)
         s = self.system
-        self.forms = StepForms(scheme.forms, lambda builder: ParticleForm(
-            builder, s.space, particle_shapes=particles, grid_functions=s.fields, constants=s.constants))
+        self._gauss_points = None
+        shapes = {name: values.shape[1:] for name, values in particles.fields.items()}
+        if scheme.pressure_quadrature == "gauss":  # fempm.pressure_points
+            GaussPoints.check(particles)
+            self._gauss_points = GaussPoints(s.scalar_space, self._reference_density)
+            shapes["material"] = ()
+        self.forms = StepForms(scheme.step_forms(), lambda builder: ParticleForm(
+            builder, s.space, particle_shapes=shapes, grid_functions=s.fields, constants=s.constants))
         self._jet_order = max(self.forms.residual.order, self.forms.jacobian.order)  # the jets the forms read
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
@@ -176,9 +183,13 @@ class ImplicitSolver(Stepper):
                 p[transfer.AFFINE_FIELDS[1]][:] = affine
 
     def quadrature_points(self):
-        """The points the step's forms integrate at, after P2G: the particles. (A study of other
-        rules, ``benchmarks/pressure_quadrature.py``, adds points of its own here.)"""
-        return self.particles
+        """The points the step's forms integrate at, after P2G: the particles, and with
+        ``Scheme.pressure_quadrature = "gauss"`` the Gauss points of the cells the water reaches
+        (:mod:`fempm.pressure_points`)."""
+        if self._gauss_points is None:
+            return self.particles
+        fraction = self.system.fields["smoothed_density"].values[:, 0] / self._reference_density
+        return self._gauss_points.points(self.particles, self._gauss_points.wet_cells(fraction))
 
     def project(self) -> np.ndarray:
         """P2G: grid velocity and acceleration, smoothed density; returns the free dofs.

@@ -16,13 +16,15 @@ import numpy as np
 
 from fempm.errors import InputError
 
-__all__ = ["Controls", "INITIAL_ACCELERATIONS", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
+__all__ = ["Controls", "INITIAL_ACCELERATIONS", "PRESSURE_QUADRATURES", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
 
 SIDES = ("left", "right", "bottom", "top")
 #: The conditions a side may have (see :class:`Physics`).
 WALLS = ("slip", "no-slip", "outflow", "open")
 #: The particle-grid transfers (see :class:`Scheme` and :mod:`fempm.transfer`).
 TRANSFERS = ("flip", "apic", "tpic", "affine-flip")
+#: where the pressure's terms are integrated (fempm.pressure_points)
+PRESSURE_QUADRATURES = ("particles", "gauss")
 #: how the implicit step gets Newmark's a_0 (:attr:`Scheme.initial_acceleration`)
 INITIAL_ACCELERATIONS = ("solved", "given")
 #: ``Controls.matrix_region = "auto"`` keeps rows only near the water above this many cells.
@@ -130,6 +132,10 @@ class Scheme:
             :meth:`fempm.implicit.ImplicitSolver.solve_initial_acceleration`; not with moving
             walls, whose start is an impulse) or ``given`` (the particles' ``acceleration`` field
             as it is, e.g. an exact one).
+        pressure_quadrature: where the implicit step integrates the pressure's work, gravity and the
+            continuity, one of :data:`PRESSURE_QUADRATURES`: ``particles`` (every term there, method.md)
+            or ``gauss`` (the Gauss points of the cells the water reaches, :mod:`fempm.pressure_points`,
+            with ``forms/gauss_pressure.py`` in place of the default forms; one density for all material).
     """
 
     dt: float = 1.0e-3
@@ -146,6 +152,14 @@ class Scheme:
     pic_rate: float = 100.0
     forms: str | Path = "incompressible"
     initial_acceleration: str = "solved"
+    pressure_quadrature: str = "particles"
+
+    def step_forms(self) -> str | Path:
+        """The forms a step compiles: :attr:`forms`; with the Gauss points' quadrature, the shipped
+        ``gauss_pressure`` in place of the default ``incompressible``."""
+        if self.pressure_quadrature == "gauss" and str(self.forms) == "incompressible":
+            return "gauss_pressure"
+        return self.forms
 
     def check(self):
         """Raise :class:`InputError` naming the first unacceptable value."""
@@ -165,6 +179,8 @@ class Scheme:
             raise InputError(f"pic_blend must be in [0, 1], got {self.pic_blend}")
         if self.transfer not in TRANSFERS:
             raise InputError(f"transfer must be one of {TRANSFERS}, got {self.transfer!r}")
+        if self.pressure_quadrature not in PRESSURE_QUADRATURES:
+            raise InputError(f"pressure_quadrature must be one of {PRESSURE_QUADRATURES}, got {self.pressure_quadrature!r}")
         if not (np.isfinite(self.pic_rate) and self.pic_rate >= 0):
             raise InputError(f"pic_rate must be a finite number >= 0 (1/s), got {self.pic_rate}")
         if self.initial_acceleration not in INITIAL_ACCELERATIONS:

@@ -36,7 +36,7 @@ from fempm.expressions import Expression
 from fempm.formsfile import forms_path, shipped_forms
 from fempm.grid import cell_counts, cell_shares, last_widths, square_cell_size
 from fempm.linear import LARGE_SYSTEM
-from fempm.options import FLUID_REGION_CELLS, TRANSFERS, Scheme
+from fempm.options import FLUID_REGION_CELLS, PRESSURE_QUADRATURES, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
 from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, finite, folder_name, forms_name,
                           fraction, in_range, key, non_negative, petsc_table, point, points, positive, range_pair,
@@ -184,6 +184,7 @@ class Solver:
     newmark_gamma: float = key(in_range(0, 1), Scheme.gamma)
     pressure_limit: float | None = key(positive, None, unit="Pa")
     forms: str = key(forms_name, "incompressible")
+    pressure_quadrature: str = key(choice(*PRESSURE_QUADRATURES), Scheme.pressure_quadrature)
     petsc: dict = key(petsc_table, {})
 
 
@@ -362,6 +363,9 @@ def _parse(data: dict, source: Path, forms: str | Path | None) -> Scene:
     elif solver.forms not in shipped_forms():
         raise InputError(f"solver.forms = {solver.forms!r}: no shipped forms of that name; shipped: "
                          f"{', '.join(shipped_forms())} (a file of your own: --forms PATH)")
+    elif solver.forms == "gauss_pressure" and solver.pressure_quadrature != "gauss":
+        raise InputError("solver.forms = 'gauss_pressure' integrates the pressure's terms at Gauss points: set "
+                         "solver.pressure_quadrature = 'gauss'")
     _check_folder(values["output"].folder)
     return Scene(**values)
 

@@ -102,7 +102,13 @@ BAD_SCENES = [
      r"a forms file is Python code that runs, so a scene cannot name one by path; give your own file on the "
      r"command line with --forms PATH"),
     ("forms not shipped", _edit('pic_rate = 100.0', 'pic_rate = 100.0\nforms = "nowhere"'), [],
-     r"solver.forms = 'nowhere': no shipped forms of that name; shipped: incompressible, weakly_compressible"),
+     r"solver.forms = 'nowhere': no shipped forms of that name; shipped: gauss_pressure, incompressible, "
+     r"weakly_compressible"),
+    ("unknown pressure quadrature", _edit('pic_rate = 100.0', 'pic_rate = 100.0\npressure_quadrature = "gaus"'), [],
+     r"solver.pressure_quadrature: must be one of 'particles', 'gauss', got 'gaus'"),
+    ("Gauss-point forms without their points", _edit('pic_rate = 100.0', 'pic_rate = 100.0\nforms = "gauss_pressure"'),
+     [], r"solver.forms = 'gauss_pressure' integrates the pressure's terms at Gauss points: set "
+     r"solver.pressure_quadrature = 'gauss'"),
     ("no fluid", re.sub(r"\[\[bodies\]\].*?particles_per_cell = 4[^\n]*\n", "", DAMBREAK, flags=re.S), [],
      r"the scene has no fluid: add at least one \[\[bodies\]\] table"),
     ("obstacle finer than the grid", DAMBREAK + '\n[[obstacles]]\nshape = "rectangle"\nlower = [0.4, 0.0]\n'

@@ -84,7 +84,8 @@ def test_taylor_green_at_64_cells():
                    "grid reaches sooner (docs/verification.md, 'How it grows'); with it the rest is still open. PSPG's share: "
                    "its term at half and a quarter gives 6.2e-3 and 5.1e-3 at 128² against 3.7e-3 and 3.2e-3 at 64², the "
                    "loss falling fast only as the term goes (1.44e-3 without). The pressure's terms at fixed Gauss "
-                   "points give 4.5e-4 / 7.6e-5, a study not yet shippable (docs/pressure-quadrature.md)")
+                   "points (solver.pressure_quadrature = 'gauss', an option) give 4.5e-4 / 7.6e-5 "
+                   "(tests/test_pressure_points.py, docs/pressure-quadrature.md)")
 def test_taylor_green_loss_falls_under_refinement():
     """nu = 1e-6, U dt/h = 0.4, the dam break's particle shifting: the loss at 128² below the loss at 64²."""
     fine, coarse = (vortices.taylor_green("affine-FLIP", n, 0.4 / n, 1e-6, shifting=vortices.SHIFTING)["numerical"]
@@ -151,7 +152,8 @@ def test_column_at_rest_for_10_s():
                    "a pairing under the hydrostatic pressure, with FLIP/PIC too, sooner with no-slip walls, whatever "
                    "tau (T = 0.01 to 0.1 sqrt(h/g)) or 10 times the viscosity; shifting at rest too (a floor of 20/s on "
                    "its relaxation) holds the speeds at 8e-4 m/s, then fails at 6 s. The pressure's terms at fixed "
-                   "Gauss points hold it (6.8e-4 m/s at 14 s) but break the Gresho vortex (docs/pressure-quadrature.md)")
+                   "Gauss points (solver.pressure_quadrature = 'gauss', an option) hold it (6.8e-4 m/s at 14 s) but break "
+                   "the Gresho vortex with the crowding-only correction (docs/pressure-quadrature.md)")
 def test_column_stays_at_rest_for_14_s():
     r = column.rest("affine-FLIP", 14.0)
     print(r)
@@ -169,7 +171,8 @@ def test_column_stays_at_rest_for_14_s():
                    "tau <= 0.0015 h / (|g| dt), holds it to 15 s (2.8e-5 m/s; then a free-surface mode, 0.43 m/s at 20 s) "
                    "with the gauges at 3.0 / 2.8 / 2.7 / 3.9 % and the front at 1.785 %, but on a grid twice as fine "
                    "(20 x 80 cells) the column fails with it or without at 5 ms (0.5 m/s at 2 s) and at 2.5 ms (from ~5 s), "
-                   "and so does the seed's FLIP/PIC there (0.27 m/s at 6 s)")
+                   "and so does the seed's FLIP/PIC there (0.27 m/s at 6 s). With the pressure's terms at Gauss points "
+                   "(solver.pressure_quadrature = 'gauss') it stays at rest (tests/test_pressure_points.py)")
 def test_column_stays_at_rest_at_ten_ms_steps():
     r = column.rest("affine-FLIP", 4.0, dt=1e-2)
     print(r)

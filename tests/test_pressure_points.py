@@ -1,0 +1,95 @@
+"""The pressure's terms at fixed Gauss points (``solver.pressure_quadrature = "gauss"``: fempm/pressure_points.py,
+forms/gauss_pressure.py): the point set, a column at rest at the adaptive step's largest step, Taylor-Green's
+loss under refinement, the dam break on 1 and 2 ranks."""
+
+import dataclasses
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+import fempm
+from fempm.cases import column, dambreak, vortices
+from fempm.implicit import ImplicitSolver
+from fempm.options import Physics, Scheme
+from fempm.pressure_points import GAUSS_WEIGHTS
+from fempm.scene import Output, load_scene, to_toml
+
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
+
+
+def gauss_solver(basis, particles, physics=None, scheme=None, controls=None):
+    """The implicit solver with the pressure's terms at Gauss points."""
+    scheme = dataclasses.replace(scheme or Scheme(), pressure_quadrature="gauss")
+    return ImplicitSolver(basis, particles, physics, scheme, controls)
+
+
+@pytest.mark.mpi
+def test_the_gauss_points_of_a_full_box_integrate_its_area_and_extend_the_particles_tabulation():
+    """A box whose last column and row of cells are cut (0.75 x 0.45 on h = 0.1), full of water: every open
+    cell takes its 3 x 3 points, whose weights sum to the box's area to round-off; the particles come first,
+    the Gauss points carry the water's density, and the tabulation cached for them is the basis's own."""
+    comm = MPI.COMM_WORLD
+    grid = fempm.Grid(comm, (0.0, 0.0), (0.75, 0.45), 0.1)
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.0, 0.0), (0.75, 0.45)), per_cell=2, density=1000.0)
+    solver = gauss_solver(fempm.BSpline2(grid), water, Physics(gravity=(0.0, -9.81)))
+    solver.step()
+    solver.system.space.tabulate_particles(water, 1)
+    points = solver.quadrature_points()
+    gauss = points["material"] == 0.0
+    assert np.array_equal(points.x[~gauss], water.x) and np.all(points["material"][~gauss] == 1.0)
+    assert comm.allreduce(int(gauss.sum())) == len(GAUSS_WEIGHTS) * 8 * 5  # every cell of the box
+    assert comm.allreduce(points["volume"][gauss].sum()) == pytest.approx(0.75 * 0.45, rel=1e-14)
+    assert np.all(points["density"][gauss] == 1000.0) and not np.any(points["velocity"][gauss])
+    phi, lfun = solver.system.space.tabulate_particles(points, 1)
+    assert np.array_equal(phi, solver.basis.tabulate(points.cell, points.xi, 1))
+    assert np.array_equal(lfun, solver.system.scalar_space.local_functions_of_cells(points.cell))
+
+
+def test_a_column_at_rest_stays_at_rest_at_10_ms_steps():
+    """The dam break's column at the adaptive step's largest step, where with the pressure at the particles a
+    vertical mode grows (tests/test_transfer_cases.py, strict xfail): at Gauss points it stays at rest."""
+    r = column.rest("affine-FLIP", 5.0, dt=1e-2, solver_type=gauss_solver)
+    print(r)
+    assert r["status"] == "completed"
+    assert r["speed"] < 1e-3  # measured 5.5e-4 m/s (with the pressure at the particles 0.3 m/s at 4 s)
+    assert -0.0050 < r["volume"] < 0  # measured -0.449 %: it settles (issue 11 asks 0.2 %; docs/pressure-quadrature.md)
+
+
+def test_taylor_green_loss_falls_under_refinement():
+    """nu = 1e-6, U dt / h = 0.4, to t = 0.25, the shipped particle shifting: with the pressure at the particles
+    the loss rises from 64² to 128² (the particles' disorder reaches it); at Gauss points it falls."""
+    coarse, fine = (vortices.taylor_green("affine-FLIP", n, 0.4 / n, 1e-6, shifting=vortices.SHIFTING,
+                                          solver_type=gauss_solver) for n in (32, 64))
+    print(coarse["numerical"], fine["numerical"])
+    assert coarse["status"] == fine["status"] == "completed"
+    # measured 2.60e-3 and 4.51e-4 per unit time (pressure at the particles: 4.63e-3 and 4.40e-3, and 7.45e-3 at 128²)
+    assert fine["numerical"] < 0.25 * coarse["numerical"] < 1e-3
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns its own mpirun")
+def test_the_dam_break_with_gauss_points_is_the_same_on_1_and_2_ranks(tmp_path):
+    """The shipped scene cut to its first 100 steps at the seed's step, with the Gauss points: the front and
+    the gauges agree on 1 and 2 ranks (the points are laid out per rank over its own cells)."""
+    mpirun = str(Path(sys.executable).parent / "mpirun")
+    runs = {}
+    for ranks in (1, 2):
+        folder = tmp_path / f"ranks{ranks}"
+        scene = dambreak.at_seed_setup(load_scene(SCENE, end_time=0.1))
+        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, pressure_quadrature="gauss"),
+                                    output=Output(folder=str(folder), progress=False))
+        scene_file = tmp_path / f"scene{ranks}.toml"
+        scene_file.write_text(to_toml(scene))
+        run = subprocess.run([mpirun, "-n", str(ranks), sys.executable, "-m", "fempm.cli", "run", str(scene_file)],
+                             capture_output=True, text=True, timeout=900, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        assert run.returncode == 0, run.stderr[-3000:]
+        runs[ranks] = [np.loadtxt(folder / name, delimiter=",", skiprows=2) for name in ("front.csv", "gauges.csv")]
+    (front1, gauges1), (front2, gauges2) = runs[1], runs[2]
+    assert front1.shape == (101, 2) and front1[-1, 1] - front1[0, 1] > 0.02  # the front ran
+    assert np.abs(front2 - front1).max() <= 1e-10
+    assert np.nanmax(np.abs(gauges2 - gauges1)) <= 1e-6 * np.nanmax(np.abs(gauges1))
