@@ -9,6 +9,8 @@ around the water, weighted by a share of water, and the particles keep the inert
 stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weightings
 (:data:`WEIGHTINGS`):
 
+* ``gauss (shipped: pressure_quadrature)``: the ``sharp`` one as fempm ships it, ``Scheme.pressure_quadrature =
+  "gauss"`` (``fempm.pressure_points``, ``forms/gauss_pressure.py``; its cells: where the share may be above zero);
 * ``smooth``: the smoothed fraction of water ``rho~ / rho`` (eq. 2) at the point, clipped to 1,
   with PSPG's residual that of the weighted terms, ``grad(wet p) / wet``;
 * ``smooth, PSPG uncorrected``: the same with PSPG's residual as shipped;
@@ -23,7 +25,7 @@ stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weighti
   wet Gauss points hold the particles' volume.
 
 Each against the shipped particle quadrature (``particles``) on the dam break's front (to
-t = 0.28 s, against interFoam 160²), its right-wall gauges (``benchmarks/wall_pressure.py``), Taylor-Green's loss (nu = 1e-6, U dt / h = 0.4, to t = 0.25,
+t = 0.28 s, against interFoam 160²), its CPU time per step, its right-wall gauges (``benchmarks/wall_pressure.py``), Taylor-Green's loss (nu = 1e-6, U dt / h = 0.4, to t = 0.25,
 64² and 128²), the Gresho vortex (64², to t = 3) and the dam break's column at rest (10 x 40 cells,
 1 ms to 14 s and 10 ms to 15 s; and 19.5 cells deep, its surface half-way up a cell, 1 ms to 5 s and
 10 ms to 15 s); the Gresho vortex and the columns on a cell edge also with the shipped scene's
@@ -58,18 +60,13 @@ from fempm.cases import column, dambreak, vortices
 from fempm.density import DEEP
 from fempm.implicit import ImplicitSolver
 from fempm.options import Scheme
-from fempm.particles import Particles
+from fempm.pressure_points import GAUSS_WEIGHTS, QuadraturePoints
 from fempm.simulation import build_solver
 from fempm.verification import advance
 
 FORMS = Path(__file__).resolve().parent / "forms" / "gauss_pressure.py"
 RESULTS = pages.ROOT / "docs" / "pressure-quadrature.json"
 PAGE = pages.ROOT / "docs" / "pressure-quadrature.md"
-_GAUSS = np.array([0.5 - 0.5 * np.sqrt(0.6), 0.5, 0.5 + 0.5 * np.sqrt(0.6)])
-_GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
-#: a cell's 3 x 3 Gauss points in units of its size, and their weights (summing to 1)
-GAUSS_POINTS = np.stack(np.meshgrid(_GAUSS, _GAUSS, indexing="ij"), axis=-1).reshape(-1, 2)
-GAUSS_WEIGHTS = np.outer(_GAUSS_WEIGHTS, _GAUSS_WEIGHTS).ravel()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,8 +88,11 @@ class Weighting:
     conserved: bool = False
 
 
+#: the shipped option, ``Scheme.pressure_quadrature = "gauss"`` (``fempm.pressure_points``, ``forms/gauss_pressure.py``)
+SHIPPED = "shipped"
 WEIGHTINGS = {
     "particles": None,  # the shipped forms and quadrature
+    "gauss (shipped: pressure_quadrature)": SHIPPED,
     "smooth": Weighting("smooth", corrected=True),
     "smooth, PSPG uncorrected": Weighting("smooth"),
     "sharp": Weighting("smooth", sharpness=2.0, corrected=True),
@@ -115,36 +115,29 @@ class GaussPressure(ImplicitSolver):
     def __init__(self, weighting: Weighting, basis, particles, physics=None, scheme=None, controls=None):
         self.weighting = weighting
         self.offsets = []  # the conserved weighting's offsets, step by step
-        fields = {"material": 1.0, "wet": 0.0, "sharpness": weighting.sharpness,
+        fields = {"wet": 0.0, "sharpness": weighting.sharpness,
                   "offset": (weighting.sharpness - 1) / 2,
                   "correction": float(weighting.corrected), "gauss_inertia": float(weighting.gauss_inertia)}
         for name, value in fields.items():
             if name not in particles.fields:
                 particles.add_field(name)
             particles[name][:] = value
-        super().__init__(basis, particles, physics, dataclasses.replace(scheme or Scheme(), forms=str(FORMS)),
-                         controls)
+        super().__init__(basis, particles, physics, dataclasses.replace(
+            scheme or Scheme(), forms=str(FORMS), pressure_quadrature="gauss"), controls)
 
-    def quadrature_points(self) -> Particles:
-        """The particles and the Gauss points of the cells holding particles and their neighbours."""
-        p, g = self.particles, self.grid
-        cells = self._cells_around_water()
-        sizes = g.cell_sizes(cells)
-        offsets = GAUSS_POINTS[None] * sizes[:, None]  # (cells, 9, 2)
-        x = (g.cell_origin(cells)[:, None] + offsets).reshape(-1, 2)
-        volume = (GAUSS_WEIGHTS[None] * np.prod(sizes, axis=1)[:, None]).ravel()
-        point_cells = np.repeat(cells, len(GAUSS_WEIGHTS))
-        wet = self._wet(cells, point_cells, offsets.reshape(-1, 2) / g.h, volume)
-        points = Particles(g)
-        for name, values in p.fields.items():
-            if name not in points.fields:
-                points.add_field(name, values.shape[1:])
-        carried = {name: values for name, values in p.fields.items()
-                   if name not in ("x", "volume", "mass", "id", "density")}
-        points.add_points(p.x, p["volume"], density=p["density"], **carried)
-        points.add_points(x, volume, density=self._reference_density, material=0.0, wet=wet, sharpness=1.0,
-                          gauss_inertia=float(self.weighting.gauss_inertia))
-        return points
+    def quadrature_points(self) -> QuadraturePoints:
+        """The particles and the Gauss points of the cells holding particles and their neighbours
+        (``fempm.pressure_points``), with the weighting's shares of water at the Gauss points."""
+        gp = self._gauss_points
+        around = np.isin(gp.cells, self._cells_around_water())
+        w = self.weighting
+
+        def fields(chosen):
+            n = len(GAUSS_WEIGHTS)
+            cells = gp.cells[chosen]
+            wet = self._wet(cells, np.repeat(cells, n), gp.xi[chosen].reshape(-1, 2), gp.volume[chosen].ravel())
+            return {"wet": wet, "sharpness": 1.0, "gauss_inertia": float(w.gauss_inertia)}
+        return gp.points(self.particles, around, fields)
 
     def _cells_around_water(self) -> np.ndarray:
         g = self.grid
@@ -207,8 +200,7 @@ class GaussPressure(ImplicitSolver):
 def solver_type(weighting: str, surface_aware: bool = False):
     """The solver class (or factory) of a weighting, as the cases take it; ``surface_aware``: with the shipped
     scene's volume correction (``Scheme.surface_aware``, ``fempm.density``) instead of the case's."""
-    w = WEIGHTINGS[weighting]
-    made = ImplicitSolver if w is None else functools.partial(GaussPressure, w)
+    made = _maker(WEIGHTINGS[weighting])
     if not surface_aware:
         return made
 
@@ -221,8 +213,20 @@ def scene_solver(weighting: str, scene) -> ImplicitSolver:
     """The solver of a scene with a weighting's quadrature."""
     solver = build_solver(scene)
     w = WEIGHTINGS[weighting]
-    return solver if w is None else GaussPressure(w, solver.basis, solver.particles, solver.physics, solver.scheme,
-                                                  solver.controls)
+    return solver if w is None else _maker(w)(solver.basis, solver.particles, solver.physics, solver.scheme,
+                                              solver.controls)
+
+
+def _maker(w):
+    """The solver type of a weighting (``None``: the particles; :data:`SHIPPED`: ``pressure_quadrature = "gauss"``)."""
+    if w is None:
+        return ImplicitSolver
+    if w == SHIPPED:
+        def shipped(basis, particles, physics=None, scheme=None, controls=None):
+            return ImplicitSolver(basis, particles, physics,
+                                  dataclasses.replace(scheme or Scheme(), pressure_quadrature="gauss"), controls)
+        return shipped
+    return functools.partial(GaussPressure, w)
 
 
 # -- the cases: each returns a dict of its measures ----------------------------------------------
@@ -235,6 +239,19 @@ def dambreak_front(weighting: str, quick: bool) -> dict:
     front = references.dimensionless_front(h[:, 0], h[:, 1])
     return {"front": references.front_difference(front, references.interfoam_front(160)), "status": run.status,
             "cause": run.cause, "t": run.time, "wall": run.wall, "steps": run.steps}
+
+
+def step_cost(weighting: str, quick: bool) -> dict:
+    """The shipped dam break's CPU time per step over steps 21-220 (the first ones compile and settle)."""
+    solver = scene_solver(weighting, dambreak.scene({"time.end": 2.0, "output.progress": False}, files=False))
+    first, last = (5, 25) if quick else (20, 220)
+    for _ in range(first):
+        solver.step()
+    start = time.process_time()
+    for _ in range(last - first):
+        solver.step()
+    return {"ms_per_step": 1e3 * (time.process_time() - start) / (last - first), "steps": last - first,
+            "points": len(solver.quadrature_points()), "particles": len(solver.particles)}
 
 
 def right_wall_gauges(weighting: str, quick: bool) -> dict:
@@ -277,6 +294,7 @@ def column_at_rest(dt: float, end: float, cells: float = 20.0, surface_aware: bo
 
 CASES = {
     "dambreak": dambreak_front,
+    "step_cost": step_cost,
     "gauges": right_wall_gauges,
     "taylor_green_64": taylor_green(64),
     "taylor_green_128": taylor_green(128),
@@ -302,6 +320,8 @@ def _cell(case: str, r: dict | None) -> str:
         return "not run"
     if case == "dambreak":
         return f"{100 * r['front']:.2f} %" + _stopped(r)
+    if case == "step_cost":
+        return f"{r['ms_per_step']:.2f} ms ({r['points']} points)"
     if case.startswith("taylor_green"):
         return f"{r['numerical']:.2e}" + _stopped(r)
     if case == "gauges":
@@ -314,7 +334,7 @@ def _cell(case: str, r: dict | None) -> str:
 
 
 def write_page(data: dict):
-    head = ["weighting", "dam-break front vs interFoam 160²",
+    head = ["weighting", "dam-break front vs interFoam 160²", "CPU per step, dam break (quadrature points)",
             "right-wall gauges 5 / 14.6 / 29.2 / 58.4 mm: noise (mean vs interFoam 160²)", "Taylor–Green loss, 64²", "128²",
             "Gresho, 64², t = 3: KE / L / largest ρ̃/ρ", "the same, without the volume correction (α = 0)", "column, 1 ms, 14 s: speed at the end / largest (m/s) / volume",
             "column, 10 ms, 15 s: the same", "column 19.5 cells deep, 1 ms, 5 s", "the same, 10 ms, 15 s",
