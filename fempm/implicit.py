@@ -22,6 +22,7 @@ from mpi4py import MPI
 from fempm import diagnostics, transfer
 from fempm.bases import Basis
 from fempm.density import DeepWater
+from fempm.errors import InputError
 from fempm.options import SIDES, Controls, Physics, Scheme
 from fempm.pressure_points import GaussPoints
 from fempm.particles import Particles
@@ -117,13 +118,14 @@ class ImplicitSolver(Stepper):
         self.region = MatrixRegion(self.system.space, controls.matrix_region, particles)
         s = self.system
         self._gauss_points = None
-        shapes = {name: values.shape[1:] for name, values in particles.fields.items()}
         if scheme.pressure_quadrature == "gauss":  # fempm.pressure_points
             GaussPoints.check(particles)
             self._gauss_points = GaussPoints(s.scalar_space, self._reference_density)
-            shapes["material"] = ()
         self.forms = StepForms(scheme.step_forms(), lambda builder: ParticleForm(
-            builder, s.space, particle_shapes=shapes, grid_functions=s.fields, constants=s.constants))
+            builder, s.space, particle_shapes=particles, grid_functions=s.fields, constants=s.constants))
+        if self.forms.residual.fixed and self._gauss_points is None:
+            raise InputError(f"forms {scheme.step_forms()!s}: they integrate over s.dx_fixed (Gauss points), but "
+                             f"pressure_quadrature is 'particles': set it to 'gauss'")
         self._jet_order = max(self.forms.residual.order, self.forms.jacobian.order)  # the jets the forms read
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")

@@ -1,26 +1,28 @@
 """The pressure's terms at fixed Gauss points, beside the particles (``Scheme.pressure_quadrature``).
 
 With ``pressure_quadrature = "gauss"`` a step integrates at two kinds of points
-(``forms/gauss_pressure.py``): the particles (``material`` = 1) carry the inertia, the viscous
-stress and PSPG; the 3 x 3 Gauss points of every cell where the water reaches (``material`` = 0)
-carry the pressure's work, gravity and the continuity, weighted there by the share of water the
+(``forms/gauss_pressure.py``): the particles (``s.dx``, ``s.dx_lumped``) carry the inertia, the
+viscous stress and PSPG; the 3 x 3 Gauss points of every cell where the water reaches
+(``s.dx_fixed``) carry the pressure's work, gravity and the continuity, weighted there by the share of water the
 forms take from the smoothed density (eq. 2). At the particles these terms follow the particles'
 disorder, and a cell's rule jumps each time one crosses its edge; at fixed points they do not
 (``docs/pressure-quadrature.md``).
 
-:class:`GaussPoints` picks the cells and lays out their points once per run; :class:`QuadraturePoints`
-is one step's set, the particles followed by the Gauss points, read by the forms' assembly as it
-reads particles.
+:class:`GaussPoints` lays out the points of this rank's cells once per run and picks a step's cells;
+:class:`StepPoints` holds the step's particles (``s.dx``, ``s.dx_lumped``) and its Gauss points
+(:class:`FixedPoints`, ``s.dx_fixed``), each read by the forms' assembly as it reads particles.
 """
 
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 from mpi4py import MPI
 
 from fempm.errors import InputError
 
-__all__ = ["GAUSS_WEIGHTS", "GAUSS_XI", "SHARPNESS", "GaussPoints", "QuadraturePoints", "wet_threshold"]
+__all__ = ["GAUSS_WEIGHTS", "GAUSS_XI", "SHARPNESS", "FixedPoints", "GaussPoints", "StepPoints", "wet_threshold"]
 
 #: how much the share of water sharpens the smoothed fraction phi = rho~ / rho: ``clip(k phi - (k - 1) / 2, 0, 1)``
 SHARPNESS = 2.0
@@ -37,46 +39,42 @@ def wet_threshold(sharpness: float = SHARPNESS) -> float:
     return (sharpness - 1) / (2 * sharpness)
 
 
-class QuadraturePoints:
-    """One step's quadrature points: the particles, then Gauss points, read as the assembly reads particles.
+class FixedPoints:
+    """One step's Gauss points, read by the forms' assembly as it reads particles (``s.dx_fixed``).
 
-    A field is the particles' values followed by the Gauss points': ``material`` is 1 at a particle and 0
-    at a Gauss point, ``density`` at a Gauss point the water's, ``volume`` its quadrature weight; the Gauss
-    points' other fields are zero unless given (``gauss_fields``). The basis's tabulations cached on the
-    particles are extended by the Gauss points' (:meth:`fempm.space.Space.tabulate_particles`).
+    A field is the Gauss points' own where given (``fields``), the water's ``density``, their ``volume`` (the
+    quadrature weight), else zero, shaped as the particles' field of that name.
     """
 
     def __init__(self, particles, cells: np.ndarray, xi: np.ndarray, x: np.ndarray, volume: np.ndarray,
-                 density: float, space, gauss_fields: dict | None = None):
+                 density: float, fields: dict | None = None):
         self.particles, self.grid = particles, particles.grid
-        self.num_gauss = len(cells)
-        self._gauss = {"x": x, "volume": volume, "density": np.full(len(cells), density), **(gauss_fields or {})}
-        self.cell = np.concatenate([particles.cell, cells])
-        self.xi = np.concatenate([particles.xi, xi])
+        self.cell, self.xi = cells, xi
         self.cache: dict = {}
-        self._fields: dict[str, np.ndarray] = {"material": np.repeat([1.0, 0.0], [len(particles), len(cells)])}
-        lfun = None
-        for key, (phi, particle_lfun, basis) in particles.cache.items():
-            if basis is space.basis:
-                lfun = space.local_functions_of_cells(cells) if lfun is None else lfun
-                self.cache[key] = (np.concatenate([phi, basis.tabulate(cells, xi, key[1])]),
-                                   np.concatenate([particle_lfun, lfun]), basis)
+        self._fields = {"x": x, "volume": volume, "density": np.full(len(cells), density)}
+        self._given = dict(fields or {})
 
     def __len__(self) -> int:
         return len(self.cell)
 
     @property
     def x(self) -> np.ndarray:
-        return self["x"]
+        return self._fields["x"]
 
     def __getitem__(self, name: str) -> np.ndarray:
         if name not in self._fields:
-            values = self.particles[name]
-            gauss = self._gauss.get(name)
-            if gauss is None:
-                gauss = np.zeros((self.num_gauss, *values.shape[1:]), dtype=values.dtype)
-            self._fields[name] = np.concatenate([values, np.broadcast_to(gauss, (self.num_gauss, *values.shape[1:]))])
+            shape = (len(self), *self.particles[name].shape[1:])
+            given = self._given.get(name)
+            self._fields[name] = np.zeros(shape) if given is None else np.broadcast_to(given, shape).copy()
         return self._fields[name]
+
+
+@dataclasses.dataclass(frozen=True)
+class StepPoints:
+    """A step's two point sets: the particles (``s.dx``, ``s.dx_lumped``) and the fixed points (``s.dx_fixed``)."""
+
+    particles: object
+    fixed: FixedPoints
 
 
 class GaussPoints:
@@ -116,12 +114,12 @@ class GaussPoints:
         function) exceeds ``threshold``: where a share of water above zero may be."""
         return fraction[self.functions].max(axis=1) > threshold
 
-    def points(self, particles, wet: np.ndarray, gauss_fields=None) -> QuadraturePoints:
+    def points(self, particles, wet: np.ndarray, fields=None) -> StepPoints:
         """The particles and the Gauss points of the cells ``wet`` (boolean per cell of :attr:`cells`);
-        ``gauss_fields``: a function of those cells' indices in :attr:`cells` giving fields at their points."""
+        ``fields``: a function of those cells' indices in :attr:`cells` giving fields at their points."""
         n = len(GAUSS_WEIGHTS)
         chosen = np.flatnonzero(wet)
-        return QuadraturePoints(particles, np.repeat(self.cells[chosen], n), self.xi[chosen].reshape(-1, 2),
-                                self.x[chosen].reshape(-1, 2), self.volume[chosen].ravel(), self.density,
-                                self.space, gauss_fields(chosen) if gauss_fields else None)
-
+        fixed = FixedPoints(particles, np.repeat(self.cells[chosen], n), self.xi[chosen].reshape(-1, 2),
+                            self.x[chosen].reshape(-1, 2), self.volume[chosen].ravel(), self.density,
+                            fields(chosen) if fields else None)
+        return StepPoints(particles, fixed)

@@ -80,7 +80,7 @@ def _cpu_tag() -> str:
 # the CPU's tag in a (unused) define keeps a kernel built for one CPU from being loaded on another
 # that shares the cache (an HPC home folder)
 _JIT_OPTIONS = {"cffi_extra_compile_args": ["-O3", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
-_REGULAR, _LUMPED = 0, 1  # subdomain ids of s.dx and s.dx_lumped on the jet cell
+_REGULAR, _LUMPED, _FIXED = 0, 1, 2  # subdomain ids of s.dx, s.dx_lumped and s.dx_fixed on the jet cell
 _KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
 _ffi = FFI()
 
@@ -178,6 +178,9 @@ class Symbols:
             replaced by its coefficient at ``f``, and weighted by ``V_p N_f(x_p)``; a mass
             term over it gives the lumped (diagonal) mass matrix. Its integrand may not
             take derivatives. On the Gauss target it is the ordinary ``dx``.
+        dx_fixed: quadrature at the step's fixed points, when it has them beside the particles
+            (:mod:`fempm.pressure_points`: Gauss points of the cells the water reaches); a particle
+            field there is the fixed points' own. On the Gauss target it is the ordinary ``dx``.
         x: the spatial coordinate.
         h: the grid cell size (a number).
     """
@@ -196,6 +199,7 @@ class Symbols:
         self.test = self._split(ufl.TestFunction(V), space.fields)
         self.dx = target.dx
         self.dx_lumped = target.dx_lumped
+        self.dx_fixed = target.dx_fixed
         self.x = ufl.SpatialCoordinate(target.mesh)
         self.h = space.grid.h
 
@@ -253,7 +257,7 @@ class _ParticleTarget:
             "quadrature_weights": np.ones(1),
         }
         measure = ufl.Measure("dx", domain=self.mesh, metadata=rule)
-        self.dx, self.dx_lumped = measure(_REGULAR), measure(_LUMPED)
+        self.dx, self.dx_lumped, self.dx_fixed = measure(_REGULAR), measure(_LUMPED), measure(_FIXED)
         self._spaces: dict[tuple, dolfinx.fem.FunctionSpace] = {}
 
     def space(self, fields):
@@ -284,6 +288,7 @@ class _GaussTarget:
         self.degree = degree
         self.dx = ufl.Measure("dx", domain=self.mesh, metadata={"quadrature_degree": degree})
         self.dx_lumped = self.dx  # Gauss quadrature has no nodal rule for B-splines: consistent
+        self.dx_fixed = self.dx
         self._spaces: dict[tuple, dolfinx.fem.FunctionSpace] = {}
 
     def space(self, fields):
@@ -456,7 +461,7 @@ class ParticleForm:
             expanded = ufl.algorithms.expand_derivatives(form)  # the slow part of building a form: once
             if _derivative_order(expanded, _LUMPED) > 0:
                 raise InputError("an integral over dx_lumped may not take derivatives (it uses nodal values)")
-            needed = max(_derivative_order(expanded, _REGULAR), 1)
+            needed = max(_derivative_order(expanded, _REGULAR), _derivative_order(expanded, _FIXED), 1)
             if needed <= order:
                 break
             if needed > 2:
@@ -473,10 +478,11 @@ class ParticleForm:
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
-        self._kernels = {}  # subdomain id -> kernel of the regular and the lumped integral
+        self._kernels = {}  # subdomain id -> kernel of the regular, the lumped and the fixed points' integral
         for i in range(ufcx.form_integral_offsets[0], ufcx.form_integral_offsets[1]):
             address = int(_ffi.cast("intptr_t", ufcx.form_integrals[i].tabulate_tensor_float64))
             self._kernels[ufcx.form_integral_ids[i]] = _KERNEL_TYPE(address)
+        self.fixed = _FIXED in self._kernels  # whether it integrates over s.dx_fixed
         original = form.coefficients()
         coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
         lumped = [i for i in expanded.integrals() if i.subdomain_id() in (_LUMPED, (_LUMPED,))]
@@ -522,25 +528,35 @@ class ParticleForm:
         """The matrix ``A_ij = sum_p V_p a(phi_j, phi_i)(x_p)``, assembled (zeroed first if given)."""
         self._require_rank(2)
         target = self._zeroed_target(A)
+        particles, fixed = _point_sets(particles, self)
         phi, lfun, weight, coeffs, consts = self._particle_data(particles)
         if _REGULAR in self._kernels:
             self._regular_matrix(target, particles, phi, lfun, weight, coeffs, np.arange(coeffs.shape[1]), consts)
         self._lumped_matrix(target, particles, lfun, weight, coeffs, self._packing.particle_slots(), consts)
+        if _FIXED in self._kernels:
+            phi, lfun, weight, coeffs, consts = self._particle_data(fixed)
+            self._regular_matrix(target, fixed, phi, lfun, weight, coeffs, np.arange(coeffs.shape[1]), consts,
+                                 kind=_FIXED)
         return target.finalize()
 
     def assemble_vector(self, particles, b: dolfinx.la.Vector | None = None) -> dolfinx.la.Vector:
         """The vector ``b_i = sum_p V_p L(phi_i)(x_p)``; owned entries complete, ghosts zero."""
         self._require_rank(1)
         b = self._zeroed_vector(b)
+        particles, fixed = _point_sets(particles, self)
         phi, lfun, weight, coeffs, consts = self._particle_data(particles)
         if _REGULAR in self._kernels:
-            assembly.assemble_vector(
-                self._kernels[_REGULAR], b.array, particles.x, particles.cell, weight, phi, lfun,
-                coeffs, consts, self._perm, self.space.grid.h,
-            )
+            self._regular_vector(b, particles, phi, lfun, weight, coeffs, consts)
         self._lumped_vector(b, particles, lfun, weight, coeffs, consts)
+        if _FIXED in self._kernels:
+            self._regular_vector(b, fixed, *self._particle_data(fixed), kind=_FIXED)
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return b
+
+    def _regular_vector(self, b, points, phi, lfun, weight, coeffs, consts, kind=_REGULAR):
+        """The ``dx`` part of the vector (``kind`` = ``_FIXED``: the ``dx_fixed`` part, at the fixed points)."""
+        assembly.assemble_vector(self._kernels[kind], b.array, points.x, points.cell, weight, phi, lfun, coeffs,
+                                 consts, self._perm, self.space.grid.h)
 
     def assemble_with(self, residual: ParticleForm, particles, A: PETSc.Mat | None = None,
                       b: dolfinx.la.Vector | None = None) -> tuple[PETSc.Mat, dolfinx.la.Vector]:
@@ -558,6 +574,12 @@ class ParticleForm:
             b = residual.assemble_vector(particles, b)
             return self.assemble_matrix(particles, A), b
         target, b = self._zeroed_target(A), residual._zeroed_vector(b)
+        particles, fixed = _point_sets(particles, self)
+        if _FIXED in self._kernels:  # the fixed points' integrals, in one pass too
+            phi, lfun, weight, coeffs, consts_r = residual._particle_data(fixed)
+            vector = (residual._kernels[_FIXED], b.array, consts_r, residual._perm)
+            self._regular_matrix(target, fixed, phi, lfun, weight, coeffs, columns, self._constants_now(), vector,
+                                 kind=_FIXED)
         phi, lfun, weight, coeffs, consts_r = residual._particle_data(particles)
         consts = self._constants_now()
         vector = (residual._kernels[_REGULAR], b.array, consts_r, residual._perm)
@@ -597,7 +619,7 @@ class ParticleForm:
     def _find_columns(self, residual) -> np.ndarray | None:
         if (not isinstance(residual, ParticleForm) or residual.rank != 1 or residual.space is not self.space
                 or residual.order != self.order or _REGULAR not in self._kernels
-                or _REGULAR not in residual._kernels
+                or _REGULAR not in residual._kernels or (_FIXED in self._kernels) != (_FIXED in residual._kernels)
                 or any(_LUMPED in form._kernels and not form._lumped_affine for form in (self, residual))):
             return None
         theirs = {(kind, name): (offset, size) for kind, name, offset, size, _ in residual._packing._parts}
@@ -626,11 +648,13 @@ class ParticleForm:
         b.array[:] = 0.0
         return b
 
-    def _regular_matrix(self, target, particles, phi, lfun, weight, coeffs, columns, consts, vector=None):
-        """The ``dx`` part of the matrix (and of ``vector``'s form, see :func:`fempm.assembly.assemble_matrix`)."""
+    def _regular_matrix(self, target, particles, phi, lfun, weight, coeffs, columns, consts, vector=None,
+                        kind=_REGULAR):
+        """The ``dx`` part of the matrix (and of ``vector``'s form, see :func:`fempm.assembly.assemble_matrix`;
+        ``kind`` = ``_FIXED``: the ``dx_fixed`` parts, at the fixed points)."""
         lay = target.layout
         assembly.assemble_matrix(
-            self._kernels[_REGULAR], target.values, lay.indptr, lay.stencil, particles.x, particles.cell,
+            self._kernels[kind], target.values, lay.indptr, lay.stencil, particles.x, particles.cell,
             weight, phi, lfun, coeffs, columns, consts, self._perm, self.space.grid.h, vector,
         )
         target.mark_written(lfun)
@@ -679,8 +703,8 @@ class ParticleForm:
     def assemble_scalar(self, particles) -> float:
         """``sum_p V_p f(x_p)`` over the particles of all ranks."""
         self._require_rank(0)
-        if _LUMPED in self._kernels:
-            raise InputError("a functional cannot integrate over dx_lumped")
+        if _LUMPED in self._kernels or _FIXED in self._kernels:
+            raise InputError("a functional cannot integrate over dx_lumped or dx_fixed")
         _, _, weight, coeffs, consts = self._particle_data(particles)
         local = assembly.assemble_scalar(
             self._kernels[_REGULAR], particles.x, weight, coeffs, consts, self.space.grid.h)
@@ -690,6 +714,16 @@ class ParticleForm:
         if self.rank != rank:
             names = {0: "a functional", 1: "a linear form", 2: "a bilinear form"}
             raise InputError(f"this form is {names[self.rank]}, not {names[rank]}")
+
+
+def _point_sets(points, form: ParticleForm) -> tuple:
+    """The particles and the fixed points of a step's points (``points.particles`` and ``points.fixed``,
+    :class:`fempm.pressure_points.StepPoints`; or particles alone and None), for ``form``."""
+    fixed = getattr(points, "fixed", None)
+    if fixed is None and _FIXED in form._kernels:
+        raise InputError("the forms integrate over s.dx_fixed, but the step has no fixed points: set "
+                         "solver.pressure_quadrature = 'gauss'")
+    return (points if fixed is None else points.particles), fixed
 
 
 # --------------------------------------------------------------------------------------

@@ -27,7 +27,8 @@ What a form may use (see ``fempm.quadrature.Symbols``):
 
 Two measures: ``s.dx`` integrates at the particles; ``s.dx_lumped`` too, but with
 the grid functions taken at the basis function being tested (nodal quadrature,
-row-sum lumping): the inertia over it has the lumped mass matrix of MPM.
+row-sum lumping): the inertia over it has the lumped mass matrix of MPM. (A third,
+``s.dx_fixed``, integrates at fixed Gauss points: ``forms/gauss_pressure.py``.)
 
 The same forms solve the FEM-only reference (``fempm.eulerian.EulerianSolver``): on a
 fixed grid with Gauss quadrature, the particle fields become fields at the Gauss points
