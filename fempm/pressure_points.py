@@ -48,7 +48,7 @@ class FixedPoints:
 
     def __init__(self, particles, cells: np.ndarray, xi: np.ndarray, x: np.ndarray, volume: np.ndarray,
                  density: float, fields: dict | None = None):
-        self.particles, self.grid = particles, particles.grid
+        self.particles = particles  # whose fields' shapes the points' take
         self.cell, self.xi = cells, xi
         self.cache: dict = {}
         self._fields = {"x": x, "volume": volume, "density": np.full(len(cells), density)}
@@ -88,7 +88,7 @@ class GaussPoints:
 
     def __init__(self, space, density: float):
         grid = space.basis.grid
-        self.space, self.density = space, density
+        self.density = density
         cells = grid.owned_cells[~grid.blocked[grid.owned_cells]]
         sizes = grid.cell_sizes(cells)
         offsets = GAUSS_XI[None] * sizes[:, None]  # (cells, 9, 2)
