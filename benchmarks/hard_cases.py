@@ -5,6 +5,7 @@ a 10 Pa s fluid, an obstacle, a lone particle, a sparse cloud, a corner, a long 
 each one's measures as a row and writes ``docs/hard-cases.md`` from ``templates/hard-cases.md``::
 
     python benchmarks/hard_cases.py [--full] [--doc docs/hard-cases.md] [--case NAME ...]
+    python benchmarks/hard_cases.py --pressure-quadrature gauss    # docs/hard-cases-gauss.md
 
 Default: the short versions the tests run in CI; ``--full``: the long ones too (hours: the
 40 s dam break at the seed's step among them).
@@ -20,14 +21,17 @@ from mpi4py import MPI
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 import pages
 from fempm.cases.hard import CASES, COLUMNS, Outcome, row, run_case
+from fempm.options import PRESSURE_QUADRATURES
 
 
-def markdown(short: list[Outcome], full: list[Outcome]) -> str:
-    """``docs/hard-cases.md``: the cases, the tables, how they were made."""
+def markdown(short: list[Outcome], full: list[Outcome], flags: str = "") -> str:
+    """``docs/hard-cases.md``: the cases, the tables, how they were made (``flags``: the command line's)."""
     cases = pages.table(["case", "set-up", "short (s)", "full (s)"],
                         ([c.name, c.what, f"{c.short:g}", f"{c.full:g}"] for c in CASES.values()))
     longer = f"\n## Full versions\n\n{pages.table(COLUMNS, map(row, full))}\n" if full else ""
-    return pages.fill("hard-cases.md", flags=" --full" if full else "", ranks=MPI.COMM_WORLD.size, cases=cases,
+    note = (" This page: the same cases with the pressure's terms at Gauss points (`solver.pressure_quadrature = "
+            "\"gauss\"`), which the tests do not assert on." if flags else "")
+    return pages.fill("hard-cases.md", flags=(" --full" if full else "") + flags, note=note, ranks=MPI.COMM_WORLD.size, cases=cases,
                       short=pages.table(COLUMNS, map(row, short)), full=longer, **pages.provenance())
 
 
@@ -35,20 +39,24 @@ def main(argv=None):
     """Run the cases (short, and with ``--full`` also full), print the rows, write the page."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--full", action="store_true", help="the long versions too")
-    parser.add_argument("--doc", type=Path, default=pages.ROOT / "docs" / "hard-cases.md", help="markdown output")
+    parser.add_argument("--doc", type=Path, default=None, help="markdown output (default docs/hard-cases.md, "
+                        "with --pressure-quadrature gauss docs/hard-cases-gauss.md)")
+    parser.add_argument("--pressure-quadrature", choices=PRESSURE_QUADRATURES, default="particles",
+                        help="where the pressure's terms are integrated (solver.pressure_quadrature)")
     parser.add_argument("--case", nargs="+", choices=list(CASES), default=list(CASES), help="only these cases")
     args = parser.parse_args(argv)
     outcomes = {False: [], True: []}
     for full in (False, True) if args.full else (False,):
         for name in args.case:
-            outcomes[full].append(run_case(name, full))
+            outcomes[full].append(run_case(name, full, pressure_quadrature=args.pressure_quadrature))
             if MPI.COMM_WORLD.rank == 0:
                 print(f"{'full' if full else 'short'}: " + " | ".join(
                     f"{k}: {v}" for k, v in zip(COLUMNS, row(outcomes[full][-1]))), flush=True)
     if MPI.COMM_WORLD.rank == 0:
-        text = markdown(outcomes[False], outcomes[True])
+        gauss = args.pressure_quadrature == "gauss"
+        text = markdown(outcomes[False], outcomes[True], " --pressure-quadrature gauss" if gauss else "")
         print(text)
-        pages.write(args.doc, text)
+        pages.write(args.doc or pages.ROOT / "docs" / ("hard-cases-gauss.md" if gauss else "hard-cases.md"), text)
 
 
 if __name__ == "__main__":

@@ -31,7 +31,7 @@ measures) and a long one; ``benchmarks/hard_cases.py`` writes both as ``docs/har
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from math import sqrt
 from typing import Callable
 
@@ -217,11 +217,15 @@ class Watch:
         )
 
 
-def run_case(name: str, full: bool = False, comm=MPI.COMM_WORLD) -> Outcome:
-    """Build case ``name``, run it to its end time (short, or ``full``) and measure it."""
+def run_case(name: str, full: bool = False, comm=MPI.COMM_WORLD, pressure_quadrature: str = "particles") -> Outcome:
+    """Build case ``name``, run it to its end time (short, or ``full``) and measure it; ``pressure_quadrature``:
+    the scheme's (:class:`fempm.options.Scheme`), the case's solver remade with it if another."""
     case = CASES[name]
     end = case.full if full else case.short
     solver = (case.build_full if full and case.build_full else case.build)(comm)
+    if pressure_quadrature != solver.scheme.pressure_quadrature:
+        solver = ImplicitSolver(solver.basis, solver.particles, solver.physics,
+                                replace(solver.scheme, pressure_quadrature=pressure_quadrature), solver.controls)
     watch = Watch(solver)
     run = advance(solver, end, watch)
     return watch.outcome(name, solver, end, run)
