@@ -30,8 +30,8 @@ from fempm.pressure_points import SHARPNESS
 
 #: the share of water PSPG divides by is at least this (its correction is p grad(wet) / wet): a particle
 #: thrown clear of the water, where the share is near zero and steep, otherwise gets a correction as large
-#: as the pressure over a small fraction of a cell; with 1e-3 the dam break's pressure blew up as its jets
-#: landed (t = 0.92 s), with 0.25 the jet onto the obstacle of scenes/obstacle.toml (0.30 s)
+#: as the pressure over a small fraction of a cell; with floors near zero the dam break's pressure blew up
+#: as its jets landed, at 1/4 the jet onto the obstacle's (README, the pressure-quadrature study)
 WET_FLOOR = 0.5
 
 
