@@ -128,7 +128,6 @@ class GaussPressure(ImplicitSolver):
         (``fempm.pressure_points``), with the weighting's shares of water at the Gauss points."""
         gp = self._gauss_points
         around = np.isin(gp.cells, self._cells_around_water())
-        w = self.weighting
 
         def fields(chosen):
             n = len(GAUSS_WEIGHTS)
