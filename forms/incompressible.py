@@ -42,6 +42,7 @@ compiled once per run and these constants do not change during a run (see
 :func:`switched_on`); ``dt`` at compilation is the run's largest step.
 """
 
+import numpy as np
 import ufl
 
 from fempm import newmark
@@ -294,24 +295,27 @@ def momentum_residual(s):
     return residual
 
 
-#: PSPG's residual leaves its viscous part out below this diffusion number nu dt / h^2 (see pspg)
+#: PSPG's residual leaves its viscous part out below this diffusion number nu T / h^2 (see viscous_residual_matters)
 VISCOUS_RESIDUAL_MIN = 1.0e-3
 
 
 def viscous_residual_matters(s):
     """Whether PSPG's residual takes its viscous part ``div(2 mu eps(v_{n+1}))``: the diffusion
-    number at compilation, with the run's largest step::
+    number over PSPG's transient time ``T`` (:func:`pspg_tau`) at compilation::
 
-        nu dt / h^2 >= VISCOUS_RESIDUAL_MIN,   nu = mu / density
+        nu T / h^2 >= VISCOUS_RESIDUAL_MIN,   nu = mu / density,
+        T = TAU_GRAVITY_TIME sqrt(h / |g|) under gravity, else the run's largest step
 
     Left out, the part would have moved the continuity rows by ``tau nu / h^2 <= nu T / (2 h^2)``
-    of their divergence (``tau <= T / 2``, :func:`pspg_tau`): below the threshold less than the
-    particle quadrature's own error. Taking it needs the second derivatives of the basis, whose
-    jets double the size of the kernels. Water on a centimetre grid lies far below the threshold;
-    slow viscous flows (Poiseuille, a 10 Pa s column) lie above it.
+    of their divergence (``tau <= T / 2``): below the threshold less than the particle quadrature's
+    own error. Taking it needs the second derivatives of the basis, whose jets double the size of
+    the kernels. Water under gravity lies far below the threshold on any grid a run can afford; slow
+    viscous flows (Poiseuille, a 10 Pa s column) lie above it.
     """
     mu, dt, density = (constant_value(s.constant(name)) for name in ("mu", "dt", "density"))
-    return bool(mu * dt >= VISCOUS_RESIDUAL_MIN * density * s.h**2)
+    g = float(np.linalg.norm(np.atleast_1d(constant_value(s.constant("gravity")))))
+    transient = TAU_GRAVITY_TIME * np.sqrt(s.h / g) if g > 0 else dt
+    return bool(mu * transient >= VISCOUS_RESIDUAL_MIN * density * s.h**2)
 
 
 def residual(s):
