@@ -61,7 +61,7 @@ STUDY = [
     ("dt_unshifted", "a fixed step, dt 5e-4, no shifting", {**dambreak.seed_setup(5e-4), "solver.shifting": 0.0}),
     ("adaptive_fast", "adaptive step, Courant 1", {"time.courant": 1.0}),
     ("pic", "the seed's FLIP with 10 % PIC per step", {"solver.transfer": "flip", "solver.pic_blend": 0.1,
-                                                       "solver.pic_rate": 0.0}),
+                                                       "solver.pic_rate": 0.0, "solver.rest_pic_rate": 0.0}),
     ("crowding_only", "volume correction on crowding only", {"solver.surface_aware": False}),
     ("no_pspg", "no PSPG", {"solver.pspg": False}),
 ]

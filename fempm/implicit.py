@@ -236,8 +236,9 @@ class ImplicitSolver(Stepper):
                     *(g.space.field_offset(name) for name in ("du", "dv", "da", "v", "a", "p")))
         sc = self.scheme
         values, divergence = self._particle_room(len(p), g.space.bs)
-        transfer.update_state(g, p, sc.transfer, transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt),
-                              values, divergence)
+        share = transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt)
+        rest = transfer.rest_share(sc.transfer, sc.rest_pic_rate, s.dt, self.physics.gravity, self.grid.h)
+        transfer.update_state(g, p, sc.transfer, share, values, divergence, rest)
         x = p.x
         _move(values, g.space.field_offset("du"), g.space.field_offset("p"), x, p["pressure"])
         p.fields["x"] = s.walls.keep_inside(x)

@@ -124,6 +124,12 @@ class Scheme:
             and that the affine parts make vanish fast as h falls. Without any PIC share, FLIP
             increments let a column at rest grow a grid-scale velocity mode; on Q1 a share of
             100/s does not hold it either (``apic`` does: ``tests/test_implicit.py``).
+        rest_pic_rate: PIC share per unit time (1/s) of water at rest under gravity, for ``flip`` and
+            ``affine-flip``: a particle where the grid's new velocity is below
+            ``transfer.REST_SPEED sqrt(|g| h)`` takes a share rising linearly as its speed falls, from
+            the flowing share to ``min(1, rest_pic_rate dt)`` at zero (:func:`fempm.transfer.rest_share`).
+            Still water otherwise grows slow modes from the particle quadrature's errors (a column's
+            bottom corner); flowing water keeps ``pic_rate``. 0: none.
         forms: the weak forms, a file of ``forms/`` by bare name or a path to a ``.py`` file.
         initial_acceleration: Newmark's ``a_0``, one of :data:`INITIAL_ACCELERATIONS`: ``solved``
             (the first step is solved once from the particles' own ``a_0``, and its end-of-step
@@ -150,6 +156,7 @@ class Scheme:
     transfer: str = "affine-flip"
     pic_blend: float = 0.0
     pic_rate: float = 100.0
+    rest_pic_rate: float = 300.0
     forms: str | Path = "incompressible"
     initial_acceleration: str = "solved"
     pressure_quadrature: str = "particles"
@@ -183,6 +190,8 @@ class Scheme:
             raise InputError(f"pressure_quadrature must be one of {PRESSURE_QUADRATURES}, got {self.pressure_quadrature!r}")
         if not (np.isfinite(self.pic_rate) and self.pic_rate >= 0):
             raise InputError(f"pic_rate must be a finite number >= 0 (1/s), got {self.pic_rate}")
+        if not (np.isfinite(self.rest_pic_rate) and self.rest_pic_rate >= 0):
+            raise InputError(f"rest_pic_rate must be a finite number >= 0 (1/s), got {self.rest_pic_rate}")
         if self.initial_acceleration not in INITIAL_ACCELERATIONS:
             raise InputError(f"initial_acceleration must be one of {INITIAL_ACCELERATIONS}, "
                              f"got {self.initial_acceleration!r}")

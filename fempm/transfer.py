@@ -419,6 +419,23 @@ def pic_share(kind: str, pic_blend: float, pic_rate: float, dt: float) -> float:
     return 1.0 if kind in AFFINE_KINDS else min(1.0, pic_blend + pic_rate * dt)
 
 
+#: water slower than this times ``sqrt(|g| h)`` is at rest for :func:`rest_share`
+REST_SPEED = 1.0e-2
+
+
+def rest_share(kind: str, rest_pic_rate: float, dt: float, gravity, h: float) -> tuple[float, float]:
+    """The PIC share of water at rest and the speed below which it sets in: ``(min(1, rest_pic_rate dt),
+    REST_SPEED sqrt(|g| h))``; ``(0, 0)`` (none) for ``apic`` and ``tpic`` (whose share is whole) and
+    without gravity. Between that speed and zero a particle's share rises linearly from the flowing
+    share (:func:`pic_share`) to it (:func:`update_state`): a step whose water is at rest damps the
+    slow modes the particle quadrature's errors grow there, at a rate that does not grow as dt falls.
+    """
+    g = float(np.linalg.norm(gravity))
+    if kind in AFFINE_KINDS or g == 0.0 or rest_pic_rate == 0.0:
+        return 0.0, 0.0
+    return min(1.0, rest_pic_rate * dt), REST_SPEED * np.sqrt(g * h)
+
+
 def affine_rule(kind: str) -> str:
     """How a transfer ``kind`` takes its affine parts at G2P (:func:`affine_grid_to_particles`): the
     grid gradient for ``tpic``, APIC's ``B_p D_p^-1`` for ``apic`` and ``affine-flip``."""
@@ -473,11 +490,12 @@ _G2P_RULES = ("apic", "tpic")
 
 
 def update_state(g2p: GridFunction, particles, kind: str, share: float, values: np.ndarray,
-                 divergence: np.ndarray):
+                 divergence: np.ndarray, rest: tuple[float, float] = (0.0, 0.0)):
     """G2P of velocity and acceleration from ``g2p`` (fields ``dv``, ``da``: the step's changes;
     ``v``, ``a``: the new values), in one pass over the particles.
 
-    The values by :func:`flip` with the PIC ``share``; for the affine kinds also the affine
+    The values by :func:`flip` with the PIC ``share``, at a particle where the grid's new speed is below
+    ``rest[1]`` rising linearly to ``rest[0]`` at zero (:func:`rest_share`); for the affine kinds also the affine
     parts of ``v_{n+1}`` and ``a_{n+1}``, taken whole (``B_p D_p^-1`` for ``apic`` and
     ``affine-flip``, the grid gradient for ``tpic``). The acceleration, Newmark's state, goes
     as the velocity, so that the next step starts from one transferred pair.
@@ -492,7 +510,8 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
     else:
         rule, affine = _G2P_RULES.index(affine_rule(kind)), (particles[name] for name in AFFINE_FIELDS)
     _g2p_state(phi, lfun, function_nodes(space), np.ascontiguousarray(particles.x), g2p.values,
-               np.array([space.field_offset(name) for name in ("dv", "da", "v", "a")]), float(share), rule,
+               np.array([space.field_offset(name) for name in ("dv", "da", "v", "a")]), float(share),
+               float(rest[0]), float(rest[1]), rule,
                space.grid.h, _moment_floor(space.grid.h), particles["velocity"], particles["acceleration"], *affine,
                values, divergence)
 
@@ -508,10 +527,11 @@ def _particle_derivative(phi_p, lfun_p, grid_values, d, c):
 
 
 @numba.njit(cache=True)
-def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rule, h, floor, velocity, acceleration,
-               affine_velocity, affine_acceleration, values, divergence):
+def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rest_share, rest_speed, rule, h, floor, velocity,
+               acceleration, affine_velocity, affine_acceleration, values, divergence):
     """:func:`update_state` particle by particle: the values of ``grid_values`` into ``values[p]``, the
-    :func:`flip` of velocity and acceleration (``offsets``: of ``dv``, ``da``, ``v``, ``a``), ``div v``,
+    :func:`flip` of velocity and acceleration (``offsets``: of ``dv``, ``da``, ``v``, ``a``; the PIC share
+    rising from ``share`` to ``rest_share`` as the new speed falls from ``rest_speed`` to zero), ``div v``,
     and with ``rule`` the affine parts of ``v`` and ``a`` (0: APIC's ``B D^-1``, 1: the grid gradient; -1: none)."""
     dv, da, v, a = offsets[0], offsets[1], offsets[2], offsets[3]
     components = np.array([v, v + 1, a, a + 1])
@@ -519,9 +539,14 @@ def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rule, h, floor,
     for p in range(lfun.shape[0]):
         phi_p, lfun_p, at = phi[p], lfun[p], values[p]
         particle_jets(phi_p, lfun_p, grid_values, values[p:p + 1])  # the values: the first jet
+        k = share
+        if rest_share > share:
+            speed = np.sqrt(at[v] * at[v] + at[v + 1] * at[v + 1])
+            if speed < rest_speed:
+                k = share + (rest_share - share) * (1.0 - speed / rest_speed)
         for c in range(2):
-            velocity[p, c] = _flip(velocity[p, c], at[dv + c], at[v + c], share)
-            acceleration[p, c] = _flip(acceleration[p, c], at[da + c], at[a + c], share)
+            velocity[p, c] = _flip(velocity[p, c], at[dv + c], at[v + c], k)
+            acceleration[p, c] = _flip(acceleration[p, c], at[da + c], at[a + c], k)
         divergence[p] = (_particle_derivative(phi_p, lfun_p, grid_values, 0, v) / h
                          + _particle_derivative(phi_p, lfun_p, grid_values, 1, v + 1) / h)
         if rule == 0:

@@ -276,6 +276,38 @@ def test_pic_share():
     assert transfer.pic_share("flip", 0.5, 100.0, 1e-2) == 1.0
 
 
+def test_rest_share():
+    """min(1, rest_pic_rate dt) below 0.01 sqrt(|g| h) for FLIP and affine-FLIP under gravity; none for the
+    affine kinds (their share is whole), without gravity or at a rate of 0."""
+    expected = (0.3, 0.01 * np.sqrt(9.81 * 0.04))
+    assert transfer.rest_share("affine-flip", 300.0, 1e-3, (0.0, -9.81), 0.04) == pytest.approx(expected)
+    assert transfer.rest_share("flip", 300.0, 1e-2, (0.0, -9.81), 0.04)[0] == 1.0
+    assert transfer.rest_share("tpic", 300.0, 1e-3, (0.0, -9.81), 0.04) == (0.0, 0.0)
+    assert transfer.rest_share("affine-flip", 300.0, 1e-3, (0.0, 0.0), 0.04) == (0.0, 0.0)
+    assert transfer.rest_share("affine-flip", 0.0, 1e-3, (0.0, -9.81), 0.04) == (0.0, 0.0)
+
+
+def test_the_pic_share_rises_linearly_as_the_water_comes_to_rest(comm):
+    """Uniform new grid velocities of speed s, no change over the step: a particle's velocity v becomes
+    (1 - k) v + k v_new with k the flowing share above the rest speed and k = share + (rest - share)
+    (1 - s / rest_speed) below it."""
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
+    basis = fempm.BSpline2(grid)
+    share, rest, rest_speed = 0.1, 0.3, 0.02
+    for speed in (0.0, 0.005, 0.015, 0.02, 0.5):
+        particles = random_particles(grid, [3, 1, 4])
+        v0 = np.array([0.7, -0.2])
+        particles["velocity"][:] = particles["acceleration"][:] = v0
+        g2p = fempm.GridFunction(fempm.Space(basis, {"dv": 2, "da": 2, "v": 2, "a": 2}))
+        direction = np.array([0.6, 0.8])
+        g2p.field("v")[:] = g2p.field("a")[:] = speed * direction
+        transfer.update_state(g2p, particles, "flip", share, np.empty((len(particles), 8)), np.empty(len(particles)),
+                              rest=(rest, rest_speed))
+        k = share + (rest - share) * max(0.0, 1.0 - speed / rest_speed)
+        np.testing.assert_allclose(particles["velocity"], np.broadcast_to((1 - k) * v0 + k * speed * direction,
+                                                                          (len(particles), 2)), rtol=0, atol=1e-14)
+
+
 @pytest.mark.parametrize("kind", transfer.TRANSFERS)
 def test_the_particle_state_of_a_rank_without_particles(comm, kind):
     """A rank may hold no particles (the water on the other rank): P2G gives zeros, G2P nothing."""

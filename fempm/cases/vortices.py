@@ -39,7 +39,7 @@ __all__ = ["RHO", "SHIFTING", "VARIANTS", "gresho", "gresho_pressure", "gresho_s
 
 RHO = 1000.0  #: kg/m^3
 #: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
-VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0}, "affine-FLIP": {}}
+VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0, "rest_pic_rate": 0.0}, "affine-FLIP": {}}
 #: the shipped dam break's particle shifting (``scenes/dambreak.toml``, ``solver.shifting``; fempm.shifting)
 SHIFTING = 4.0
 CENTRE = np.array([0.5, 0.5])
