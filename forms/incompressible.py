@@ -309,8 +309,8 @@ def viscous_residual_matters(s):
     Left out, the part would have moved the continuity rows by ``tau nu / h^2 <= nu T / (2 h^2)``
     of their divergence (``tau <= T / 2``): below the threshold less than the particle quadrature's
     own error. Taking it needs the second derivatives of the basis, whose jets double the size of
-    the kernels. Water under gravity lies far below the threshold on any grid a run can afford; slow
-    viscous flows (Poiseuille, a 10 Pa s column) lie above it.
+    the kernels. Water under gravity lies below the threshold on cells coarser than about 0.4 mm (the
+    number grows as h^(-3/2)); slow viscous flows (Poiseuille, a 10 Pa s column) lie above it.
     """
     mu, dt, density = (constant_value(s.constant(name)) for name in ("mu", "dt", "density"))
     g = float(np.linalg.norm(np.atleast_1d(constant_value(s.constant("gravity")))))
