@@ -107,9 +107,11 @@ def test_large_schur_complement_is_solved_by_multigrid(monkeypatch):
     cycled, solver = _one_step(comm)
     schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
     assert schur.getType() in ("gamg", "hypre") and solver.fallbacks == 0
-    assert 4 < solver.ksp.getIterationNumber() <= 24  # measured 21 (10 with tau's T = max(dt, ...); the
+    assert 4 < solver.ksp.getIterationNumber() <= 32  # measured 28 (21 before PSPG's displacement in a step was
+    # bounded, which halves still water's tau at this 10 ms step; 10 with tau's T = max(dt, ...); the
     # first step's dt is the scene's largest; the 28k-particle dam break: 10-14)
-    assert _relative_difference(cycled, lu, comm) < 1e-8  # measured 3.6e-9 (1.3e-10 with tau's larger
+    assert _relative_difference(cycled, lu, comm) < 3e-8  # measured 1.5e-8 (3.6e-9 before PSPG's displacement in a
+    # step was bounded, the smaller tau conditioning this first step's system worse; 1.3e-10 with tau's larger
     # T = max(dt, ...): the first step's system is worse conditioned; the iterative solver: 8.4e-10)
     assert PETSc.Options().getString(solver.prefix + "fieldsplit_p_pc_type") == "lu"
 

@@ -156,26 +156,31 @@ def test_column_stays_at_rest_for_14_s():
     assert 0 < r["volume"] < 0.0021  # measured +0.197 %
 
 
-@pytest.mark.xfail(strict=True, reason="an open defect: at a fixed 10 ms step (the adaptive step's largest, which water "
-                   "at rest takes) the column does not stay at rest: speeds 9e-3 m/s at 2 s, 0.3 m/s at 4 s, the volume "
-                   "-2 %; with PSPG's tau following the step (T = 10 ms) the energy check stopped it at 1.6 s, the volume "
-                   "-13 %; also without the end-of-step map (2.8e-2 m/s at 4 s), without the volume correction, with "
-                   "alpha 1, two-sided walls, gamma 0.6 (from 7 s), at every PIC share and 3 x 3 per cell (from 8 s). "
-                   "A vertical mode, cells alternately up and down. A smaller tau, T = 0.01 sqrt(h/g), holds it at rest "
-                   "to 8 s (5e-5 m/s), but the wall gauges ripple more (3.7-5.5 %); tau limited at large steps instead, "
-                   "tau <= 0.0015 h / (|g| dt), holds it to 15 s (2.8e-5 m/s; then a free-surface mode, 0.43 m/s at 20 s) "
-                   "with the gauges at 3.0 / 2.8 / 2.7 / 3.9 % and the front at 1.785 %, but on a grid twice as fine "
-                   "(20 x 80 cells) the column fails with it or without at 5 ms (0.5 m/s at 2 s) and at 2.5 ms (from ~5 s), "
-                   "and so does the seed's FLIP/PIC there (0.27 m/s at 6 s). With the PIC share of still water "
-                   "(Scheme.rest_pic_rate; at 10 ms the flowing share is whole already, so it changes nothing here) "
-                   "that finer column holds at 2.5 ms to 8 s (8.6e-6 m/s) but not to 14 s (0.34 m/s), nor at 5 ms "
-                   "(0.72 m/s at 8 s). With the pressure's terms at Gauss points "
-                   "(solver.pressure_quadrature = 'gauss') it stays at rest (tests/test_pressure_points.py)")
 def test_column_stays_at_rest_at_ten_ms_steps():
-    r = column.rest("affine-FLIP", 4.0, dt=1e-2)
+    """At a fixed 10 ms step, the adaptive step's largest (which water at rest takes), for 14 s. Before PSPG's
+    displacement in a step was bounded (forms/incompressible.py, TAU_STEP_DISPLACEMENT) a vertical mode grew, cells
+    alternately up and down: 9e-3 m/s at 2 s, 0.3 m/s at 4 s, the volume -2 %; also without the end-of-step map,
+    without the volume correction, with alpha 1, two-sided walls, gamma 0.6, at every PIC share and 3 x 3 per cell.
+    The bound at twice its value (0.003) does not hold it (3.6e-3 m/s at 2 s, 0.21 m/s at 4 s)."""
+    r = column.rest("affine-FLIP", 14.0, dt=1e-2)
     print(r)
     assert r["status"] == "completed"
-    assert r["speed"] < 1e-3  # measured 0.33 m/s
+    assert r["speed"] < 1e-4  # measured 2.79e-5 m/s (without the bound 0.33 m/s at 4 s); 5.5e-4 while settling
+    assert 0 < r["volume"] < 0.0020  # measured +0.133 %
+
+
+@pytest.mark.full
+@pytest.mark.xfail(strict=True, reason="an open defect: past 16 s at 10 ms steps a mode grows again (1.1e-3 m/s at "
+                   "18 s, 0.27 m/s at 20 s; with the bound halved, from 20 s: 4.5e-4 at 20 s, 9.3e-2 at 22 s). On cells half "
+                   "as large (20 x 80) the column fails at 5 ms with the bound or without (1.2 m/s at 2 s; "
+                   "without, 0.72 m/s at 8 s) and from 12 s at 2.5 ms (0.34 m/s at 14 s; the bound does not bind there), the seed's FLIP/PIC too: the "
+                   "particles' quadrature of the pressure in water many cells deep. With the pressure's terms at Gauss points "
+                   "(solver.pressure_quadrature = 'gauss') that column stays at rest (tests/test_pressure_points.py)")
+def test_column_stays_at_rest_at_ten_ms_steps_for_20_s():
+    r = column.rest("affine-FLIP", 20.0, dt=1e-2)
+    print(r)
+    assert r["status"] == "completed"
+    assert r["speed"] < 1e-3  # measured 0.27 m/s
 
 
 @pytest.mark.full
