@@ -177,10 +177,34 @@ def test_column_stays_at_rest_at_ten_ms_steps():
                    "particles' quadrature of the pressure in water many cells deep. With the pressure's terms at Gauss points "
                    "(solver.pressure_quadrature = 'gauss') that column stays at rest (tests/test_pressure_points.py)")
 def test_column_stays_at_rest_at_ten_ms_steps_for_20_s():
+    """The column 20 cells deep, as the dam break's, at 10 ms steps past 16 s."""
     r = column.rest("affine-FLIP", 20.0, dt=1e-2)
     print(r)
     assert r["status"] == "completed"
     assert r["speed"] < 1e-3  # measured 0.27 m/s
+
+
+@pytest.mark.full
+def test_a_column_40_cells_deep_stays_at_rest_at_5_ms_steps():
+    """Twice the dam break's depth (0.584 m, 40 cells, in a tank twice as high) at 5 ms steps for 14 s; at
+    10 ms it does not (next)."""
+    r = column.rest("affine-FLIP", 14.0, dt=5e-3, height=2 * column.HEIGHT, tank_height=4 * column.HEIGHT)
+    print(r)
+    assert r["status"] == "completed"
+    assert r["speed"] < 1e-4  # measured 1.0e-5 m/s
+    assert 0 < r["volume"] < 0.0020  # measured +0.087 %
+
+
+@pytest.mark.full
+@pytest.mark.xfail(strict=True, reason="an open defect: a column 40 cells deep at 10 ms steps grows a mode within 2 s "
+                   "(1.9 m/s at 2 s; the energy check stops it at 2.24 s, the volume -18 %), with PSPG's displacement in "
+                   "a step bounded to 0.0015 of a cell, to half of it, or to a share scaled by the particle's pressure head "
+                   "(each stopped by 2.5 s): not PSPG's loop. 20 cells deep it holds to 16 s, and 40 deep at 5 ms to 14 s")
+def test_a_column_40_cells_deep_stays_at_rest_at_10_ms_steps():
+    r = column.rest("affine-FLIP", 4.0, dt=1e-2, height=2 * column.HEIGHT, tank_height=4 * column.HEIGHT)
+    print(r)
+    assert r["status"] == "completed"
+    assert r["speed"] < 1e-3
 
 
 @pytest.mark.full

@@ -30,11 +30,12 @@ HEIGHT = 2 * WIDTH  #: the water's depth, m
 
 
 def rest(variant: str, end: float, basis: str = "bspline", dt: float = 1e-3, comm=MPI.COMM_WORLD,
-         solver_type=ImplicitSolver, height: float = HEIGHT) -> dict:
-    """Hold the column (``height`` deep) ``end`` seconds: ``volume`` (surface height over its start, less 1),
-    the largest particle speed at the end (``speed``) and over the run (``peak``), m/s; ``status``,
-    ``cause``, ``t``, ``wall`` (``solver_type``: see :func:`fempm.verification.filled_solver`)."""
-    grid = Grid.from_cells(comm, (0.0, 0.0), (WIDTH, 4 * WIDTH), (10, 40))
+         solver_type=ImplicitSolver, height: float = HEIGHT, tank_height: float = 2 * HEIGHT) -> dict:
+    """Hold the column (``height`` deep, in a tank ``tank_height`` high, a multiple of the cell's 14.6 mm)
+    ``end`` seconds: ``volume`` (surface height over its start, less 1), the largest particle speed at the
+    end (``speed``) and over the run (``peak``), m/s; ``status``, ``cause``, ``t``, ``wall``
+    (``solver_type``: see :func:`fempm.verification.filled_solver`)."""
+    grid = Grid.from_cells(comm, (0.0, 0.0), (WIDTH, tank_height), (10, round(10 * tank_height / WIDTH)))
     physics = Physics(viscosity=1.0e-3, gravity=(0.0, -9.81))
     solver = filled_solver("MPM", BASES[basis](grid), physics, Scheme(dt=dt, **VARIANTS[variant]), density=1000.0,
                            body=Rectangle((0.0, 0.0), (WIDTH, height)), solver_type=solver_type)
