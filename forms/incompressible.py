@@ -81,7 +81,7 @@ def pspg_tau(speed, gravity, dt, h, nu):
     that displacement is a small share of a cell (at the shipped grid's largest adaptive step, 10 ms,
     a column at rest grew a vertical mode). Where the flow itself carries a particle further than a
     cell in gravity's time on a cell, the bound is relaxed in proportion: there the flow, not PSPG,
-    moves the particles (held to a cell, the dam break at a fixed 10 ms lost its stability). Steps
+    moves the particles (bounded whatever the flow's speed, the dam break at a fixed 10 ms lost its stability). Steps
     below ``TAU_STEP_DISPLACEMENT / TAU_GRAVITY_TIME * 2 sqrt(h / |g|)`` (0.12 sqrt(h / |g|)) keep ``tau0``.
     """
     g = ufl.sqrt(ufl.inner(gravity, gravity))
