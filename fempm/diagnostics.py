@@ -6,7 +6,7 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
-__all__ = ["fastest", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
+__all__ = ["fastest", "pressure_speed", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
            "surface_height"]
 
 
@@ -27,6 +27,13 @@ def fastest(particles) -> float:
     """The largest particle speed on all ranks (the root of the largest square: the same number)."""
     local = float(np.sqrt(_largest_square(particles["velocity"])))
     return particles.grid.comm.allreduce(local, op=MPI.MAX)
+
+
+def pressure_speed(particles) -> float:
+    """``max sqrt(p / rho)`` over the particles of all ranks (0 where no pressure is positive): the speed at
+    which the pressure's work at the particles changes as they move (see :class:`fempm.stepper.StepControl`)."""
+    head = particles["pressure"] / particles["density"]
+    return float(np.sqrt(max(particles.grid.comm.allreduce(float(head.max(initial=0.0)), op=MPI.MAX), 0.0)))
 
 
 def lowest_corner(grid, gravity) -> np.ndarray:

@@ -262,6 +262,10 @@ class ImplicitSolver(Stepper):
         """The largest particle speed on all ranks."""
         return diagnostics.fastest(self.particles)
 
+    def pressure_speed(self) -> float:
+        """``max sqrt(p / rho)`` over the particles on all ranks."""
+        return diagnostics.pressure_speed(self.particles)
+
     def cell_size(self) -> float:
         """The grid's cell size."""
         return self.grid.h

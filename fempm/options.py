@@ -95,7 +95,8 @@ class Scheme:
 
     Attributes:
         dt: the time step; with ``courant``, the largest step.
-        courant: an adaptive step ``dt = C h / max |v_p|`` with this C (None: the step is ``dt``).
+        courant: an adaptive step ``dt = C h / max |v_p|`` with this C, bounded for stability by the
+            pressure's speed too (None: the step is ``dt``; :class:`fempm.stepper.StepControl`).
         beta, gamma: Newmark parameters (1/4, 1/2: the trapezoidal rule).
         alpha: the volume correction's largest share per step, the alpha of method.md eq. (3),
             0 to 1 (0: left out).

@@ -15,16 +15,27 @@ from fempm.errors import InputError, ParticleOutsideGridError, SimulationDiverge
 from fempm.linear import SolveFailed
 from fempm.timing import PhaseTimes
 
-__all__ = ["StepControl", "Stepper"]
+__all__ = ["PRESSURE_COURANT", "StepControl", "Stepper"]
 
 #: Relative tolerance of time comparisons (a step that lands on a target time).
 TIME_TOLERANCE = 1e-9
+#: the largest ``dt sqrt(p / rho) / h`` of an adaptive step, whatever its Courant number (see StepControl; measured
+#: in the README's departures table)
+PRESSURE_COURANT = 0.8
 
 
 @dataclass
 class StepControl:
-    """An adaptive step: ``dt = C h / max |v_p|``, at most ``largest``, at most ``growth`` times the
-    previous step; a failed step is retried at half its size up to ``retries`` times.
+    """An adaptive step: ``dt = C h / max |v_p|``, at most ``PRESSURE_COURANT h / max sqrt(p_p / rho_p)``,
+    at most ``largest``, at most ``growth`` times the previous step; a failed step is retried at half its
+    size up to ``retries`` times.
+
+    The pressure's bound is one of stability, not of accuracy, so it does not follow C: the implicit step
+    integrates the pressure's work at the particles, whose places are updated explicitly; as a particle
+    moves by ``dx`` that work changes by about ``p dx / h`` per cell, a stiffness ``p / h^2`` that an
+    explicit update of the places follows stably only while ``dt sqrt(p / rho) / h`` stays below about 1.
+    At larger steps still water many cells deep grew a mode, cells alternately up and down (README,
+    departures table).
 
     Attributes:
         courant: C, the fraction of a cell the fastest particle may cross in a step.
@@ -49,11 +60,14 @@ class StepControl:
         if not (int(self.retries) == self.retries and self.retries >= 0):
             raise InputError(f"retries must be a whole number >= 0, got {self.retries}")
 
-    def choose(self, fastest: float, h: float, previous: float | None) -> float:
-        """The step for particles whose fastest moves at ``fastest`` m/s on cells of size ``h``."""
+    def choose(self, fastest: float, h: float, previous: float | None, pressure_speed: float = 0.0) -> float:
+        """The step for particles whose fastest moves at ``fastest`` m/s on cells of size ``h``, under a
+        largest ``sqrt(p / rho)`` of ``pressure_speed`` m/s."""
         dt = self.largest
         if fastest > 0:
             dt = min(dt, self.courant * h / fastest)
+        if pressure_speed > 0:
+            dt = min(dt, PRESSURE_COURANT * h / pressure_speed)
         if previous is not None:
             dt = min(dt, self.growth * previous)
         return dt
@@ -112,8 +126,10 @@ class Stepper:
     def _size(self, until: float | None) -> float:
         """The step: fixed, or the control's choice; shortened to land on ``until`` without a sliver
         (what is left is cut into equal steps)."""
-        dt = self.dt if self.control is None else self.control.choose(self.fastest(), self.cell_size(),
-                                                                      self._previous)
+        if self.control is None:
+            dt = self.dt
+        else:
+            dt = self.control.choose(self.fastest(), self.cell_size(), self._previous, self.pressure_speed())
         if until is None:
             return dt
         remaining = until - self.time
@@ -142,6 +158,11 @@ class Stepper:
     def fastest(self) -> float:
         """The largest particle speed on all ranks (for a step control)."""
         raise NotImplementedError
+
+    def pressure_speed(self) -> float:
+        """``max sqrt(p / rho)`` over the particles, where the pressure's work is integrated at them (for a
+        step control; 0: the scheme's steps do not depend on it)."""
+        return 0.0
 
     def cell_size(self) -> float:
         """The grid's cell size (for a step control)."""

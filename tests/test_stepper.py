@@ -8,8 +8,8 @@ import fempm
 from fempm.errors import InputError, SimulationDiverged
 from fempm.implicit import ImplicitSolver
 from fempm.linear import SolveFailed
-from fempm.options import Controls, Scheme
-from fempm.stepper import StepControl, Stepper
+from fempm.options import Controls, Physics, Scheme
+from fempm.stepper import PRESSURE_COURANT, StepControl, Stepper
 
 
 class Ballistic(Stepper):
@@ -42,6 +42,9 @@ def test_the_step_follows_the_courant_number_the_bound_and_the_growth_limit():
     assert control.choose(fastest=1.0, h=0.1, previous=None) == pytest.approx(0.05)  # C h / |v|
     assert control.choose(fastest=0.0, h=0.1, previous=None) == 0.2  # at rest: the bound
     assert control.choose(fastest=0.1, h=0.1, previous=0.1) == pytest.approx(0.125)  # at most 1.25 x the last
+    # the pressure's speed bounds it whatever C: PRESSURE_COURANT h / sqrt(p / rho)
+    assert control.choose(fastest=0.0, h=0.1, previous=None, pressure_speed=1.0) == pytest.approx(PRESSURE_COURANT * 0.1)
+    assert control.choose(fastest=10.0, h=0.1, previous=None, pressure_speed=1.0) == pytest.approx(0.005)
     with pytest.raises(InputError, match="courant"):
         StepControl(courant=0.0, largest=0.1).check()
 
@@ -62,6 +65,24 @@ def test_a_failed_step_is_retried_at_half_its_size_from_its_saved_state():
     hopeless = Ballistic(speed=1.0, control=StepControl(courant=0.5, largest=1.0, retries=2), breaks=0.001)
     with pytest.raises(SimulationDiverged, match="step 1"):
         hopeless.step()
+
+
+def test_still_water_takes_its_step_from_the_pressure_speed():
+    """A column at rest (the dam break's, 20 cells deep): its particles hardly move, so its step is
+    PRESSURE_COURANT h / max sqrt(p / rho) over the particles (fempm.stepper.StepControl), whatever C, not the
+    largest step."""
+    grid = fempm.Grid.from_cells(MPI.COMM_SELF, (0.0, 0.0), (0.146, 0.584), (10, 40))
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.0, 0.0), (0.146, 0.292)), per_cell=2, density=1000.0)
+    solver = ImplicitSolver(fempm.BSpline2(grid), water, scheme=Scheme(dt=1e-2, courant=0.4),
+                            physics=Physics(viscosity=1e-3, gravity=(0.0, -9.81)))
+    solver.step()  # from p = 0: the largest step
+    assert solver.dt == 1e-2
+    speed = np.sqrt(np.max(water["pressure"] / water["density"]))
+    assert speed == pytest.approx(np.sqrt(9.81 * 0.292), rel=0.05)  # measured 1.685 m/s: about sqrt(g D) at the floor
+    assert solver.fastest() < 0.01 * speed
+    solver.step()
+    assert solver.dt == pytest.approx(PRESSURE_COURANT * grid.h / speed, rel=1e-14)  # measured 6.93e-3 s
 
 
 @pytest.mark.mpi

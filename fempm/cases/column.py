@@ -30,14 +30,17 @@ HEIGHT = 2 * WIDTH  #: the water's depth, m
 
 
 def rest(variant: str, end: float, basis: str = "bspline", dt: float = 1e-3, comm=MPI.COMM_WORLD,
-         solver_type=ImplicitSolver, height: float = HEIGHT, tank_height: float = 2 * HEIGHT) -> dict:
-    """Hold the column (``height`` deep, in a tank ``tank_height`` high, a multiple of the cell's 14.6 mm)
-    ``end`` seconds: ``volume`` (surface height over its start, less 1), the largest particle speed at the
-    end (``speed``) and over the run (``peak``), m/s; ``status``, ``cause``, ``t``, ``wall``
+         solver_type=ImplicitSolver, height: float = HEIGHT, tank_height: float = 2 * HEIGHT, cells: int = 10,
+         courant: float | None = None) -> dict:
+    """Hold the column (``height`` deep, in a tank ``tank_height`` high, a multiple of a cell, ``cells``
+    cells across) ``end`` seconds at a fixed step ``dt`` or, with ``courant``, the adaptive step at most
+    ``dt``: ``volume`` (surface height over its start, less 1), the largest particle speed at the end
+    (``speed``) and over the run (``peak``), m/s; ``status``, ``cause``, ``t``, ``wall``, ``steps``
     (``solver_type``: see :func:`fempm.verification.filled_solver`)."""
-    grid = Grid.from_cells(comm, (0.0, 0.0), (WIDTH, tank_height), (10, round(10 * tank_height / WIDTH)))
+    grid = Grid.from_cells(comm, (0.0, 0.0), (WIDTH, tank_height), (cells, round(cells * tank_height / WIDTH)))
     physics = Physics(viscosity=1.0e-3, gravity=(0.0, -9.81))
-    solver = filled_solver("MPM", BASES[basis](grid), physics, Scheme(dt=dt, **VARIANTS[variant]), density=1000.0,
+    scheme = Scheme(dt=dt, courant=courant, **VARIANTS[variant])
+    solver = filled_solver("MPM", BASES[basis](grid), physics, scheme, density=1000.0,
                            body=Rectangle((0.0, 0.0), (WIDTH, height)), solver_type=solver_type)
     water = solver.particles
     start = diagnostics.surface_height(water)
@@ -49,4 +52,4 @@ def rest(variant: str, end: float, basis: str = "bspline", dt: float = 1e-3, com
     run = advance(solver, end, fastest)
     return {"variant": variant, "basis": basis, "dt": dt, "end": end,
             "volume": diagnostics.surface_height(water) / start - 1, "speed": solver.fastest(), "peak": peak[0],
-            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
+            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall, "steps": solver.steps}
