@@ -6,8 +6,8 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
-__all__ = ["fastest", "pressure_speed", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
-           "surface_height"]
+__all__ = ["fastest", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
+           "pressure_speed", "surface_height"]
 
 
 @numba.njit(cache=True)
@@ -32,8 +32,8 @@ def fastest(particles) -> float:
 def pressure_speed(particles) -> float:
     """``max sqrt(p / rho)`` over the particles of all ranks (0 where no pressure is positive): the speed at
     which the pressure's work at the particles changes as they move (see :class:`fempm.stepper.StepControl`)."""
-    head = particles["pressure"] / particles["density"]
-    return float(np.sqrt(max(particles.grid.comm.allreduce(float(head.max(initial=0.0)), op=MPI.MAX), 0.0)))
+    head = float((particles["pressure"] / particles["density"]).max(initial=0.0))
+    return float(np.sqrt(particles.grid.comm.allreduce(head, op=MPI.MAX)))
 
 
 def lowest_corner(grid, gravity) -> np.ndarray:
