@@ -67,7 +67,7 @@ def test_a_sloshing_surface_swells_a_fifth_as_much_as_with_the_crowding_only_cor
     # measured +0.320 % (the snapshot at 8 s +0.112 %, the drift +0.055 %/s); over fifteen variants of the scheme
     # (PIC shares 95 and 105 /s, still water's share off or ramped in over its time at rest) -0.08 to +0.34 %,
     # +0.13 % on average; crowding only +1.95 % (+0.124 %/s). The 5 s snapshot this test took before, bound 0.06 %,
-    # read +0.036 % once and +0.197 % after an unrelated change
+    # read +0.036 % once and +0.197 % after still water's PIC share came in (the variants show it was not the cause)
     assert abs(r["late_change"]) < 0.004
 
 
