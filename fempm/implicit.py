@@ -34,7 +34,10 @@ from fempm.space import GridFunction, Space
 from fempm.stepper import StepControl, Stepper
 from fempm.system import GridSystem, StepForms
 
-__all__ = ["ImplicitSolver"]
+__all__ = ["ImplicitSolver", "WALL_RESOLVES"]
+
+#: solves of a step again, at most, after wall dofs that pulled hard were released (fempm.walls)
+WALL_RESOLVES = 2
 
 
 @numba.njit(cache=True)
@@ -150,14 +153,32 @@ class ImplicitSolver(Stepper):
             self.system.space.tabulate_particles(self.particles, self._jet_order)  # one for P2G, forms, G2P
             free = self.project()
         points = self.quadrature_points()
-        self.system.solve(self.forms, free, self.region.matrix, points)
-        if self.walls.one_sided:  # one-sided walls: the next step's held set (fempm.walls)
-            reaction = self.system.reaction(self.forms, points, self.walls.normal)
+        reaction = self.solve(free, points)
+        if reaction is not None:  # one-sided walls: the next step's held set (fempm.walls)
             self.walls.update(reaction, self.system.U.vector.array, self._reference_density, dt)
         with self.timings("update"):
             self.update()
         with self.timings("relocate"):
             self.particles.relocate()
+
+    def solve(self, free: np.ndarray, points) -> np.ndarray | None:
+        """The step's solve over the ``free`` dofs; with one-sided walls, solved again (at most
+        :data:`WALL_RESOLVES` times) while the held wall dofs change within the step, those that pull with
+        more than a cell of water's weight let go (:meth:`fempm.walls.Walls.settle`), and the reaction at
+        the contact dofs."""
+        self.system.solve(self.forms, free, self.region.matrix, points)
+        if not self.walls.one_sided:
+            return None
+        reaction = self.system.reaction(self.forms, points, self.walls.normal)
+        for _ in range(WALL_RESOLVES):
+            if not self.walls.settle(reaction, self.system.U.vector.array, self._reference_density, self.system.dt):
+                break
+            for name, projected in self._projected.items():  # v_n and a_n as projected on the released dofs
+                self.system.fields[name].values[:] = projected
+            self.system.impose_walls()
+            self.system.solve(self.forms, self.system.free.select(self._material.copy()), self.region.matrix, points)
+            reaction = self.system.reaction(self.forms, points, self.walls.normal)
+        return reaction
 
     def solve_initial_acceleration(self):
         """Newmark's ``a_0`` consistent with the flow: the step (of the size last set) solved once
@@ -173,7 +194,7 @@ class ImplicitSolver(Stepper):
         with self.timings("start"):
             self.system.space.tabulate_particles(p, self._jet_order)
             free = self.project()
-            self.system.solve(self.forms, free, self.region.matrix, self.quadrature_points())
+            self.solve(free, self.quadrature_points())
             _, a_new = self.system.end_state()
             g.values[:] = 0.0
             g.field("a")[:] = a_new
@@ -218,6 +239,9 @@ class ImplicitSolver(Stepper):
                     -(-self.basis.functions_per_cell // 3), s.fields["grid_velocity"].values,
                     s.fields["grid_acceleration"].values, keep, s.space.field_offset("p"))
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs
+        # for a solve again with fewer held walls (solve): the material's dofs, v_n and a_n before the walls'
+        self._material = keep.ravel().copy()
+        self._projected = {name: s.fields[name].values.copy() for name in ("grid_velocity", "grid_acceleration")}
         s.impose_walls()
         return s.free.select(keep.ravel())
 

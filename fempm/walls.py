@@ -21,7 +21,10 @@ set (:meth:`Walls.start_step`, :meth:`Walls.update`; a primal-dual active set, H
 Ito & Kunisch 2002), lagged by one step so that a step costs one solve: after a solve, held dofs
 that pull are released and free dofs that moved into the wall are held; the next step starts
 from that set, with the dofs that were dry held and those whose projected velocity enters the
-wall held. On a no-slip wall the tangential dof of a function is held and released with its
+wall held. A held dof that pulls hard, with more than a cell of water's weight, is released within
+the step instead, which is then solved again (:meth:`Walls.settle`; lagged, a wave falling back from a wall is held
+for a step by many cells' weight, and the energy jumps).
+On a no-slip wall the tangential dof of a function is held and released with its
 normal one. Where the step's water has no free surface (every function has material in its
 support: a full box or channel, whose pressure level a pin or an outflow fixes) a reaction has
 no sign to separate by, and every wall dof stays held (two-sided). Moving walls and obstacles are always held.
@@ -35,12 +38,13 @@ import numpy as np
 from fempm.options import Physics
 from fempm.space import GridFunction, Space
 
-__all__ = ["FORCE_TOLERANCE", "FreeDofs", "SPEED_TOLERANCE", "Walls"]
+__all__ = ["FORCE_TOLERANCE", "FreeDofs", "SPEED_TOLERANCE", "STRONG_PULL", "Walls"]
 
 _COMPONENTS = {"slip": "normal", "no-slip": "both", "outflow": "tangential", "open": "none"}
 #: the component normal to each side, and the outward normal's sign
 _NORMALS = {"left": (0, -1.0), "right": (0, 1.0), "bottom": (1, -1.0), "top": (1, 1.0)}
 FORCE_TOLERANCE = 1e-3  #: pulls below this times rho |g| h^2 do not release a wall dof
+STRONG_PULL = 1.0  #: pulls above this times rho |g| h^2 (a cell of water's weight) release within the step
 SPEED_TOLERANCE = 1e-3  #: motion into a wall below this times sqrt(|g| h) does not hold one
 
 
@@ -87,6 +91,7 @@ class Walls:
         functions = space.numbering.local_functions[self.normal // space.bs]
         self._contact_ids = functions * space.bs + self.normal % space.bs
         self._gravity = max(float(np.linalg.norm(physics.gravity)), 1.0)
+        self._weighs = float(np.linalg.norm(physics.gravity)) > 0.0  # water has a weight to measure pulls by
         grid, margin = space.grid, 1e-9 * space.grid.h  # where keep_inside stops particles
         impermeable = {side: kind in ("slip", "no-slip") for side, kind in self.conditions.items()}
         self._inside = (np.where([impermeable["left"], impermeable["bottom"]], grid.lower + margin, -np.inf),
@@ -118,6 +123,8 @@ class Walls:
         self._fixed = np.concatenate([self._fixed, orphans])
         self._fixed_values = np.concatenate([self._fixed_values, np.zeros(len(orphans))])
         self.active = np.ones(len(self.normal), dtype=bool)  # held now
+        self._let_go = np.zeros(len(self.normal), dtype=bool)  # released within this step (settle)
+        self._entering = np.zeros(len(self.normal), dtype=bool)  # water projected into the wall this step
         self.wet = np.zeros(len(self.normal), dtype=bool)  # material in the function's support last step
 
     def _set_held(self):
@@ -164,9 +171,35 @@ class Walls:
             bs, first = self.space.bs, self.space.field_offset(self.field)
             incoming = velocity.vector.array[self.normal // bs * 2 + self.normal % bs - first] * self.sign
             self.active |= ~self.wet
-            self.active |= incoming > self.tolerances(0.0, 1.0)[1]
+            self._entering = incoming > self.tolerances(0.0, 1.0)[1]
+            self.active |= self._entering
         self.wet = keep[self.normal].copy()
+        self._let_go = np.zeros(len(self.normal), dtype=bool)  # released within this step (settle)
         self._set_held()
+
+    def settle(self, reaction: np.ndarray, displacement: np.ndarray, density: float, dt: float) -> bool:
+        """Within the step, for it to be solved again: the held dofs whose reaction pulls harder than
+        ``STRONG_PULL rho |g| h^2`` released, and those so released in this step that the solve moved into
+        the wall (beyond the motion tolerance) held again; whether the set changed on any rank (collective).
+
+        The active set is otherwise lagged by a step (:meth:`update`): water leaving a wall fast, as
+        a wave falling back from it, would be held by a pull of many cells' weight for that step. Dofs
+        where the projected water enters the wall are not released (an isolated particle's landing gives
+        its B-spline dofs reactions of both signs), nor any without gravity (no weight to measure by).
+        """
+        if not self.one_sided or not self._any_contact or not self.free_surface or not self._weighs:
+            return False
+        force, motion = self.tolerances(density, dt)
+        pull = self.active & ~self._entering & (reaction * self.sign > STRONG_PULL / FORCE_TOLERANCE * force)
+        back = self._let_go & ~self.active & (displacement[self.normal] * self.sign > motion)
+        count = int(np.count_nonzero(pull))
+        if self.space.comm.allreduce(count + int(np.count_nonzero(back))) == 0:
+            return False
+        self.active[pull], self.active[back] = False, True
+        self._let_go |= pull
+        self.released += count
+        self._set_held()
+        return True
 
     def update(self, reaction: np.ndarray, displacement: np.ndarray, density: float, dt: float):
         """The active set after a solve, for the next step: held dofs whose reaction pulls

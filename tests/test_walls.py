@@ -46,6 +46,38 @@ def test_water_thrown_against_the_lid_falls_back():
     assert one.grid.comm.allreduce(one.walls.released) > 100  # measured 1030 releases
 
 
+def _leaving_the_left_wall(resolves: int, monkeypatch) -> tuple[float, float, float]:
+    """One step of a 6 x 4 cm block of water touching the left wall and moving away from it at 1 m/s,
+    with at most ``resolves`` solves again after strong pulls: the slowest particle's speed away from
+    the wall, the lowest pressure and the wall dofs released."""
+    import fempm.implicit
+
+    monkeypatch.setattr(fempm.implicit, "WALL_RESOLVES", resolves)
+    grid = tank()
+    water = fempm.Particles(grid)
+    water.seed(fempm.Rectangle((0.0, 0.05), (0.06, 0.09)), per_cell=2, density=1000.0, velocity=(1.0, 0.0))
+    solver = ImplicitSolver(fempm.BSpline2(grid), water)
+    solver.step()
+    comm, p = grid.comm, solver.particles
+    return (comm.allreduce(float(p["velocity"][:, 0].min(initial=np.inf)), op=MPI.MIN),
+            comm.allreduce(float(p["pressure"].min(initial=np.inf)), op=MPI.MIN), comm.allreduce(solver.walls.released))
+
+
+@pytest.mark.mpi
+def test_water_leaving_a_wall_is_let_go_within_the_step(monkeypatch):
+    """A wall dof pulling with more than a cell of water's weight is released and the step solved again
+    (fempm.walls.STRONG_PULL): the block leaves as one body, its pressure that of free fall. With the
+    release lagged by a step, the wall holds the water back for that step."""
+    slowest, lowest, released = _leaving_the_left_wall(2, monkeypatch)
+    print(f"within the step: slowest {slowest:.6g} m/s, lowest pressure {lowest:.4g} Pa, released {released}")
+    assert slowest == pytest.approx(1.0, abs=1e-3)  # measured 0.99982 m/s
+    assert lowest > -20.0  # Pa; measured -12.0 Pa
+    slowest, lowest, _ = _leaving_the_left_wall(0, monkeypatch)
+    print(f"lagged: slowest {slowest:.6g} m/s, lowest pressure {lowest:.4g} Pa")
+    assert slowest < 0.9  # measured 0.543 m/s
+    assert lowest < -1000.0  # measured -7942 Pa
+
+
 def test_a_lone_particle_in_an_upper_corner_falls_freely():
     speeds = {}
     for one_sided in (True, False):

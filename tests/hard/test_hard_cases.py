@@ -68,14 +68,16 @@ def test_dam_break_at_ten_times_the_seeds_step(full):
     the start regained in the sloshing; 13 % with the start configuration's divergence) but stays
     bounded, and the volume holds."""
     o = measured("dt-10x", full)
-    # measured 2.040, 1.0, 0.0357 with PSPG's displacement in a step bounded (forms/incompressible.py,
+    # measured 2.241, 1.0, 0.0346 with the walls letting go of water within the step where they pull hard
+    # (fempm.walls.Walls.settle; lagged by the step, 10 ms here, they held the run-up jet back: 2.040, the seed's
+    # step gives 2.105); 2.040, 1.0, 0.0357 with PSPG's displacement in a step bounded (forms/incompressible.py,
     # TAU_STEP_DISPLACEMENT; held to a share of a cell whatever the flow's speed, the energy check stopped the run at
     # 1.72 s, a particle at 25.7 m/s); 2.060, 1.0, 0.0350 with PSPG's tau free of the step (with tau's T = max(dt, ...), its transient time
     # 10 ms here, not 0.96 ms: 1.886, 1.0, 0.0218) and the scene's particle shifting (without 1.802, 1.0, 0.0300; crowding only
     # 1.791, 1.0, 0.0304; before the crowding tolerance 2.509, 1.0, 0.0306: a run-up jet
     # at 2.5 times free fall; from a_0 = 0: 1.791, 1.0, 0.0290, the whole flow a half step late; start-configuration
     # divergence 1.962, 1.0, 0.128; FLIP/PIC 2.713, 1.01225, 0.0845)
-    assert_sound(o, 800, speed_ratio=2.08, energy_max=1.0 + EXACT, energy_rise=0.037)
+    assert_sound(o, 800, speed_ratio=2.26, energy_max=1.0 + EXACT, energy_rise=0.037)
     # measured 3.356 (with tau's T = max(dt, ...) 2.936 (crowding only 2.918; before the crowding tolerance 4.088; start-configuration divergence 3.197)
     assert o.max_cfl > 2.8
     # measured 1.100 (2 s) with PSPG's displacement bounded; 1.105 (2 s; 1.100 at 4 s) with tau free of the step (with T = max(dt, ...) 1.095), the scene's particle
@@ -100,7 +102,8 @@ def test_at_twenty_times_the_seeds_step_the_eruption_is_diagnosed(full):
     column's."""
     o = measured("dt-20x", full)
     assert o.run.status == "stopped" and o.run.cause.startswith("energy growth")
-    # measured: 27 steps, 0.54 s, a rise of 11 %, with PSPG's displacement in a step bounded (forms/incompressible.py,
+    # measured: 26 steps, 0.52 s, with the walls letting go within the step where they pull hard (fempm.walls; lagged
+    # 27 steps, 0.54 s); 27 steps, 0.54 s, a rise of 11 %, with PSPG's displacement in a step bounded (forms/incompressible.py,
     # TAU_STEP_DISPLACEMENT: at 20 ms the slow water's tau is a quarter; before it, 148 steps, 2.96 s, the energy 17 %
     # above its lowest), with PSPG's tau free of the step (with tau's
     # T = max(dt, ...), 20 ms here, not 0.96 ms: 35 steps, 0.70 s, a particle at 10.1 m/s), with the scene's particle
@@ -108,7 +111,7 @@ def test_at_twenty_times_the_seeds_step_the_eruption_is_diagnosed(full):
     # 0.64 s, a rise of 16 %; before the crowding tolerance 31 steps, 0.62 s, 14 %;
     # start-configuration divergence: 40 steps, 0.8 s, a particle at 9.49 m/s; FLIP/PIC two-sided: 29 steps, 0.58 s;
     # affine-FLIP two-sided: 34 steps, 0.68 s)
-    assert o.run.steps == 27 and o.run.time == pytest.approx(0.54)
+    assert o.run.steps == 26 and o.run.time == pytest.approx(0.52)
     assert (o.finite, o.particles, abs(o.mass_error) <= 1e-14) == (True, 800, True)
 
 
@@ -206,7 +209,7 @@ def test_a_sparse_cloud_falls_freely_and_lands(full):
     -53 kPa) that throws one out; at dt 9e-4 s and 1.1e-3 s a particle leaves at 2.5-3.6 m/s
     (the energy check stops the second)."""
     o = measured("sparse-cloud", full)
-    # measured 1.031, 1.0, 0.0078 (before the crowding tolerance 0.0107; from a_0 = 0: 1.030, 1.0, 0.0237; start-configuration divergence 1.046,
+    # measured 1.029, 1.0, 0.0080 with the walls letting go within the step where they pull hard (fempm.walls); 1.031, 1.0, 0.0078 (before the crowding tolerance 0.0107; from a_0 = 0: 1.030, 1.0, 0.0237; start-configuration divergence 1.046,
     # 1.0, 0.0094; FLIP/PIC 0.865, 1.0, 0.0025 (0.6 s), 0.004 (2 s)); the full version was not rerun with the
     # end-of-step forms
     assert_sound(o, len(hc.SPARSE), speed_ratio=1.05, energy_max=1.0 + EXACT,
@@ -216,10 +219,11 @@ def test_a_sparse_cloud_falls_freely_and_lands(full):
     # m, 1.6 h; measured 0.0227 (0.6 s; 0.0151 at 2 s) with PSPG's tau free of the step (with tau's T = max(dt, ...)
     # 0.0187; before the crowding tolerance 0.0217; affine 0.0171); FLIP/PIC 0.0165 (0.6 s), 0.0154 (2 s)
     assert o.surface_height <= 0.0235
-    # m; 0.0167 at 0.6 s (before the crowding tolerance 0.0157, FLIP/PIC 0.0165)
-    assert o.history["centroid"][-1, 1] <= bound(full, 0.0170, 2 * hc.h)
-    # measured 0.0682 at 0.6 s (before the crowding tolerance 0.0754; from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
-    assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.077, 0.1)
+    # m; 0.0174 at 0.6 s with the walls letting go within the step (0.0167 lagged; before the crowding tolerance 0.0157,
+    # FLIP/PIC 0.0165)
+    assert o.history["centroid"][-1, 1] <= bound(full, 0.0180, 2 * hc.h)
+    # measured 0.0806 at 0.6 s with the walls letting go within the step (0.0682 lagged: the held walls took more); (before the crowding tolerance 0.0754; from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
+    assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.085, 0.1)
 
 
 @pytest.mark.mpi
@@ -264,7 +268,8 @@ def test_a_long_run_settles_with_its_volume(full):
         # 1.0, 0.0306; from a_0 = 0: 1.791, 1.0, 0.0290; start-configuration divergence 1.962,
         # 1.0, 0.128; FLIP/PIC 2.713)
         assert_sound(o, 800, speed_ratio=2.52, energy_max=1.0 + EXACT, energy_rise=0.037)
-    # the layer: 73.8 mm after 5 s with PSPG's displacement in a step bounded (forms/incompressible.py,
+    # the layer: 69.6 mm after 5 s with the walls letting go within the step where they pull hard (fempm.walls; lagged
+    # 73.8 mm), 73.8 mm with PSPG's displacement in a step bounded (forms/incompressible.py,
     # TAU_STEP_DISPLACEMENT; 70.9 mm before), 70.9 mm with PSPG's tau free of the step (71.4 mm with T = max(dt, ...)) and the scene's
     # particle shifting (66.6 mm without), still sloshing (crowding only 63.9 mm;
     # 68.3 mm before the crowding tolerance, 67.4 mm without PSPG's
@@ -274,7 +279,7 @@ def test_a_long_run_settles_with_its_volume(full):
     # read 73.9, 74.5, 76.8 and 68.8 mm (the crowding tolerance) on codes whose layers' mean depths agree within
     # 1 % (from a_0 = 0 77.7 mm; FLIP/PIC 77.6), and 66.7 mm with PSPG's tau free of the step (mean depth 75.8 mm):
     # the full version holds it within 10 % of SETTLED_DEPTH = 73 mm
-    assert o.surface_height == pytest.approx(bound(full, 0.0738, SETTLED_DEPTH), rel=bound(full, 0.03, 0.10))
+    assert o.surface_height == pytest.approx(bound(full, 0.0696, SETTLED_DEPTH), rel=bound(full, 0.03, 0.10))
     if full:  # the layer's mean depth over the last 5 s, twice its centroid's height: 75.8 mm, std 1.5 mm, with PSPG's
         # tau free of the step (75.4 mm with tau's T = max(dt, ...)) and the scene's particle shifting (without 76.4 mm, std 1.0 mm over those seconds; before the crowding tolerance 77.05;
         # 76.92 with PSPG's viscous part)
