@@ -190,7 +190,8 @@ class Walls:
         if not self.one_sided or not self._any_contact or not self.free_surface or not self._weighs:
             return False
         force, motion = self.tolerances(density, dt)
-        pull = self.active & ~self._entering & (reaction * self.sign > STRONG_PULL / FORCE_TOLERANCE * force)
+        cell_weight = force / FORCE_TOLERANCE  # rho |g| h^2
+        pull = self.active & ~self._entering & (reaction * self.sign > STRONG_PULL * cell_weight)
         back = self._let_go & ~self.active & (displacement[self.normal] * self.sign > motion)
         count = int(np.count_nonzero(pull))
         if self.space.comm.allreduce(count + int(np.count_nonzero(back))) == 0:
