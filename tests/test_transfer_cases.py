@@ -52,6 +52,22 @@ def test_gresho_vortex_short():
     assert new["profile"] < 0.052
 
 
+def test_gresho_energy_loss_falls_under_refinement_with_the_scenes_particle_handling():
+    """32² and 64², t = 0.5, max u dt/h = 0.4, handled as the shipped dam break handles its particles
+    (shifting, the surface-aware correction): the energy's loss falls fourfold or more as h halves, the
+    angular momentum's and the profile's too (at t = 3, ``transfer_study.py --full --case scene_vortices``:
+    -14.5 / -2.61 / -0.94 % on 32² / 64² / 128²)."""
+    coarse, fine = (vortices.gresho("affine-FLIP", n, 0.4 / n, 0.5, shifting=vortices.SHIFTING, surface_aware=True)
+                    for n in (32, 64))
+    print(coarse, fine)
+    assert coarse["status"] == fine["status"] == "completed"
+    assert -0.040 < coarse["ke"] < 0  # measured -3.86 %
+    assert max(-0.0085, 0.25 * coarse["ke"]) < fine["ke"] < 0  # measured -0.80 % (0.21 of 32²'s)
+    assert -0.0039 < coarse["L"] < 0  # measured -0.374 %
+    assert 0.5 * coarse["L"] < fine["L"] < 0  # measured -0.118 %
+    assert fine["profile"] < 0.5 * coarse["profile"]  # measured 2.60 % against 6.40 %
+
+
 def test_column_stays_at_rest_with_affine_flip():
     """The dam-break column held 0.5 s (dt 1 ms): volume within 0.2 %, speeds below 1e-3 m/s."""
     r = column.rest("affine-FLIP", 0.5)

@@ -47,15 +47,18 @@ CENTRE = np.array([0.5, 0.5])
 
 def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
                comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha, per_cell: int = 2,
-               pspg: bool = Scheme.pspg, shifting: float = Scheme.shifting, solver_type=ImplicitSolver) -> ImplicitSolver:
+               pspg: bool = Scheme.pspg, shifting: float = Scheme.shifting, solver_type=ImplicitSolver,
+               surface_aware: bool = Scheme.surface_aware) -> ImplicitSolver:
     """The unit slip box filled with ``per_cell`` x ``per_cell`` particles per cell at the given
     velocity and acceleration (functions of the positions returning ``(values (n, 2), gradients
-    (n, 2, 2))``), with the volume correction ``alpha``, PSPG on or off and particle ``shifting``;
-    ``solver_type`` makes the solver from the basis, particles, physics and scheme."""
+    (n, 2, 2))``), with the volume correction ``alpha`` (``surface_aware``: :attr:`Scheme.surface_aware`),
+    PSPG on or off and particle ``shifting``; ``solver_type`` makes the solver from the basis, particles,
+    physics and scheme."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
     water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=per_cell, density=RHO)
-    scheme = Scheme(dt=dt, alpha=alpha, pspg=pspg, shifting=shifting, initial_acceleration="given", **VARIANTS[variant])
+    scheme = Scheme(dt=dt, alpha=alpha, surface_aware=surface_aware, pspg=pspg, shifting=shifting,
+                    initial_acceleration="given", **VARIANTS[variant])
     transfer.add_affine_fields(water, scheme.transfer)
     for name, field in (("velocity", velocity), ("acceleration", acceleration)):
         value, grad = field(water.x)
@@ -195,13 +198,15 @@ def gresho_measures(solver) -> dict:
 
 
 def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2,
-           shifting: float = Scheme.shifting, solver_type=ImplicitSolver, alpha: float = Scheme.alpha) -> dict:
+           shifting: float = Scheme.shifting, solver_type=ImplicitSolver, alpha: float = Scheme.alpha,
+           surface_aware: bool = Scheme.surface_aware) -> dict:
     """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell, particle ``shifting``):
     relative changes of kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end
     (``profile``) and at the start (``profile0``), the largest smoothed density over the water's at the
-    end (``crowding``, eq. 2: where particles gather); ``solver_type``, ``alpha``: see :func:`box_solver`."""
+    end (``crowding``, eq. 2: where particles gather); ``solver_type``, ``alpha``, ``surface_aware``: see
+    :func:`box_solver`."""
     solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, alpha=alpha, per_cell=per_cell,
-                        shifting=shifting, solver_type=solver_type)
+                        shifting=shifting, solver_type=solver_type, surface_aware=surface_aware)
     start = gresho_measures(solver)
     run = advance(solver, end)
     final = gresho_measures(solver)
