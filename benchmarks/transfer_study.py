@@ -11,7 +11,9 @@ The cases, the first four run with both transfers (``fempm.cases.vortices.VARIAN
 * the dam-break column at rest (``fempm.cases.column.rest``): volume and speeds;
 * where the Taylor-Green loss comes from (affine-FLIP, nu = 1e-6, U dt / h = 0.4): three grids at
   2 x 2, 3 x 3 and 4 x 4 particles per cell, and at 2 x 2 without PSPG; and how it grows in time
-  on 64² and 128².
+  on 64² and 128²;
+* both vortices with the shipped dam-break scene's particle handling (particle shifting, the
+  surface-aware volume correction: :func:`scene_vortex`), by grid, step and particles per cell.
 
 The results go to ``docs/verification/transfers.json`` and, through the template
 ``templates/verification-transfers.md``, to the transfers section of ``docs/verification.md``
@@ -59,6 +61,22 @@ def dambreak_front(variant: str, cells: int = 40, dt: float = 1e-3, end: float =
             "t": run.time, "wall": run.wall}
 
 
+def scene_vortex(kind: str, cells: int, courant: float, per_cell: int, end: float) -> dict:
+    """A vortex (``taylor_green`` at nu = 1e-6, or ``gresho``) handled as the shipped dam-break scene
+    handles its particles (``scenes/dambreak.toml``): affine-FLIP, particle shifting of strength
+    :data:`fempm.cases.vortices.SHIFTING`, and for Gresho the surface-aware volume correction (in a
+    closed box: of both signs everywhere); Taylor-Green runs without a correction, as in its own study.
+    ``courant``: U dt / h (Gresho: max u_theta dt / h)."""
+    dt = courant / cells
+    if kind == "taylor_green":
+        run = vortices.taylor_green("affine-FLIP", cells, dt, 1e-6, end=end, per_cell=per_cell,
+                                    shifting=vortices.SHIFTING)
+    else:
+        run = vortices.gresho("affine-FLIP", cells, dt, end=end, per_cell=per_cell, shifting=vortices.SHIFTING,
+                              surface_aware=True)
+    return {**run, "kind": kind, "courant": courant, "per_cell": per_cell}
+
+
 def studies(full: bool) -> dict:
     """Which runs each case makes (short or full)."""
     return {
@@ -72,11 +90,16 @@ def studies(full: bool) -> dict:
         "loss_sources": [("affine-FLIP", n, 0.4 / n, 1e-6, 0.25, 1.0, "bspline", per_cell, pspg)
                          for per_cell, pspg in ((2, True), (3, True), (4, True), (2, False)) for n in (32, 64, 128)],
         "loss_growth": [("affine-FLIP", 64, 0.4 / 64, 1e-6, 0.5), ("affine-FLIP", 128, 0.4 / 128, 1e-6, 0.25)],
+        "scene_vortices": [("taylor_green", n, c, k, 0.25) for n, c, k in
+                           ((64, 0.4, 2), (128, 0.4, 2), (64, 0.2, 2), (64, 0.1, 2), (64, 0.4, 3), (128, 0.4, 3))]
+        + [("gresho", n, c, k, 3.0 if full else 0.5) for n, c, k in
+           ((32, 0.4, 2), (64, 0.4, 2), (64, 0.2, 2), (64, 0.4, 3)) + (((128, 0.4, 2),) if full else ())],
     }
 
 
 RUNS = {"dambreak": dambreak_front, "taylor_green": vortices.taylor_green, "gresho": vortices.gresho,
-        "column": column.rest, "loss_sources": vortices.taylor_green, "loss_growth": vortices.taylor_green}
+        "column": column.rest, "loss_sources": vortices.taylor_green, "loss_growth": vortices.taylor_green,
+        "scene_vortices": scene_vortex}
 
 
 def _outcome(r: dict) -> str:
@@ -128,6 +151,17 @@ def section(data: dict) -> str:
         "loss_growth": pages.table(["cells", "window", "U t / h at its end", "numerical dissipation (1/unit time)"], [
             [r["cells"], f"{a:.3f}–{b:.3f}", f"{b * r['cells']:.0f}", f"{loss:.2e}"]
             for r in rows.get("loss_growth", []) for a, b, loss in r["windows"]]),
+        "scene_taylor_green": pages.table(["cells", "particles per cell", "U dt / h", "t",
+                                           "numerical dissipation (1/unit time)", "wall (s)", "outcome"], [
+            [r["cells"], f"{r['per_cell']} × {r['per_cell']}", f"{r['courant']:g}", f"{r['t']:g}",
+             f"{r['numerical']:.2e}", f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("scene_vortices", []) if r["kind"] == "taylor_green"]),
+        "scene_gresho": pages.table(["cells", "particles per cell", "max u_θ dt / h", "t", "KE change",
+                                     "angular momentum change", "u_θ L2 error", "largest ρ̃/ρ", "wall (s)", "outcome"], [
+            [r["cells"], f"{r['per_cell']} × {r['per_cell']}", f"{r['courant']:g}", f"{r['t']:g}",
+             f"{100 * r['ke']:+.2f} %", f"{100 * r['L']:+.3f} %", pct(r["profile"]), f"{r['crowding']:.2f}",
+             f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("scene_vortices", []) if r["kind"] == "gresho"]),
     }
     made = {f"{case}_made": _made(data[case]) if case in data else "Not run yet." for case in RUNS}
     return pages.fill("verification-transfers.md", marker=MARKER, **tables, **made)
