@@ -55,8 +55,8 @@ def test_gresho_vortex_short():
 def test_gresho_energy_loss_falls_under_refinement_with_the_scenes_particle_handling():
     """32² and 64², t = 0.5, max u dt/h = 0.4, handled as the shipped dam break handles its particles
     (shifting, the surface-aware correction): the energy's loss falls fourfold or more as h halves, the
-    angular momentum's and the profile's too (at t = 3, ``transfer_study.py --full --case scene_vortices``:
-    -14.5 / -2.61 / -0.94 % on 32² / 64² / 128²)."""
+    angular momentum's and the profile's too (at t = 3 and on 128² too: ``transfer_study.py --full --case
+    scene_vortices``, docs/verification.md)."""
     coarse, fine = (vortices.gresho("affine-FLIP", n, 0.4 / n, 0.5, shifting=vortices.SHIFTING, surface_aware=True)
                     for n in (32, 64))
     print(coarse, fine)
