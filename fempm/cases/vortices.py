@@ -20,22 +20,30 @@ without the volume correction, to measure the transfer's dissipation alone (the 
 expansion, a share alpha of the crowding per step, feeds energy in at a rate that grows as dt
 falls). Gresho runs the default scheme, correction included: over t = 3 the vortex's shear
 disorders the particles, and the crowding it leaves behind is what the correction undoes.
+
+:func:`fem_reference` runs either vortex without particles (FEM-only, :mod:`fempm.eulerian`) on the
+same grid and step: what the grid and the step lose by themselves.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import ufl
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from fempm import transfer
 from fempm.bases import BASES
+from fempm.eulerian import EulerianSolver
 from fempm.grid import Grid
 from fempm.implicit import ImplicitSolver
 from fempm.options import Physics, Scheme
 from fempm.particles import Particles, Rectangle
+from fempm.quadrature import GaussForm
 from fempm.verification import advance
 
-__all__ = ["RHO", "SHIFTING", "VARIANTS", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "taylor_green"]
+__all__ = ["RHO", "SHIFTING", "VARIANTS", "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy",
+           "taylor_green"]
 
 RHO = 1000.0  #: kg/m^3
 #: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
@@ -127,14 +135,19 @@ def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.
         energy.append(kinetic_energy(s.particles))
 
     run = advance(solver, end, each)
+    return {"variant": variant, "cells": cells, "dt": dt, "nu": nu, **_decay(times, energy, nu),
+            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall,
+            "per_cell": per_cell, "pspg": pspg, "shifting": shifting}
+
+
+def _decay(times, energy, nu: float) -> dict:
+    """Taylor-Green's energy history measured: the fitted ``rate`` of ``-d ln KE/dt``, the viscous one,
+    the ``numerical`` rest, its ``windows`` and ``ke_end`` against the exact ``exact_end``."""
     t, ke = np.array(times), np.array(energy)
     rate = float(-np.polyfit(t, np.log(ke), 1)[0]) if len(t) > 2 else float("nan")
     viscous = 4 * np.pi**2 * nu
-    return {"variant": variant, "cells": cells, "dt": dt, "nu": nu, "rate": rate, "viscous": viscous,
-            "windows": _window_losses(t, ke, viscous, WINDOWS),
-            "numerical": rate - viscous, "ke_end": float(ke[-1] / ke[0]), "exact_end": float(np.exp(-viscous * t[-1])),
-            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall,
-            "per_cell": per_cell, "pspg": pspg, "shifting": shifting}
+    return {"rate": rate, "viscous": viscous, "windows": _window_losses(t, ke, viscous, WINDOWS),
+            "numerical": rate - viscous, "ke_end": float(ke[-1] / ke[0]), "exact_end": float(np.exp(-viscous * t[-1]))}
 
 
 # -- Gresho -----------------------------------------------------------------------------------------
@@ -215,3 +228,90 @@ def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "
     return {"variant": variant, "cells": cells, "dt": dt, "ke": final["ke"] / start["ke"] - 1,
             "L": final["L"] / start["L"] - 1, "profile": final["profile"], "profile0": start["profile"],
             "crowding": crowding, "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
+
+
+# -- FEM-only reference -----------------------------------------------------------------------------
+def fem_reference(kind: str, cells: int, dt: float, end: float, nu: float = 0.0, basis: str = "bspline") -> dict:
+    """A vortex (``taylor_green``, U = 1, or ``gresho``) on the fixed grid: the same forms with Gauss
+    quadrature and Oseen convection (:class:`fempm.eulerian.EulerianSolver`, PSPG on),
+    started from the L2 projection of the exact velocity onto the basis. What the grid and the step
+    lose without particles: Taylor-Green's ``numerical`` loss (and :func:`taylor_green`'s other
+    measures of the energy), Gresho's ``ke``, ``L`` and ``profile`` (relative L2 error of u_theta
+    over the box) as :func:`gresho`'s; ``profile0`` at the start."""
+    exact = _at_points(_taylor_green_fields(1.0, nu)[0] if kind == "taylor_green" else _gresho_fields()[0])
+    grid = Grid.from_cells(MPI.COMM_WORLD, (0.0, 0.0), (1.0, 1.0), (cells, cells))
+    solver = EulerianSolver(BASES[basis](grid), Physics(viscosity=RHO * nu, gravity=(0.0, 0.0)),
+                            Scheme(dt=dt), density=RHO)
+    _project(solver.system.vector_space, exact, solver.velocity)
+    measure = _FieldMeasures(solver.velocity, exact)
+    start = measure()
+    times, energy = [0.0], [start["ke"]]
+
+    def each(s):
+        times.append(s.time)
+        energy.append(measure.energy())
+
+    run = advance(solver, end, each)
+    final = measure()
+    result = {"variant": "FEM-only", "kind": kind, "cells": cells, "dt": dt, "nu": nu, "status": run.status,
+              "cause": run.cause, "t": run.time, "wall": run.wall}
+    if kind == "taylor_green":
+        return {**result, **_decay(times, energy, nu)}
+    return {**result, "ke": final["ke"] / start["ke"] - 1, "L": final["L"] / start["L"] - 1,
+            "profile": final["profile"], "profile0": start["profile"]}
+
+
+def _at_points(velocity):
+    """A velocity field of :func:`box_solver`'s kind as a callable of DOLFINx's points ``(3, n)``,
+    values ``(2, n)``."""
+    return lambda x: velocity(np.ascontiguousarray(x[:2].T))[0].T
+
+
+def _project(space, field, out):
+    """``out`` = the L2 projection of ``field`` (a callable of the points ``(3, n)``, values ``(2, n)``)
+    onto ``space``, by Gauss quadrature and a direct solve of the mass matrix."""
+    mass = GaussForm(lambda s: ufl.inner(s.trial, s.test) * s.dx, space)
+    load = GaussForm(lambda s: ufl.inner(s.particle("exact"), s.test) * s.dx, space,
+                     particle_values={"exact": field})
+    M, b = mass.assemble_matrix(), load.assemble_vector()
+    solver = PETSc.KSP().create(space.comm)
+    solver.setOperators(M)
+    solver.setType("preonly")
+    solver.getPC().setType("lu")
+    solver.getPC().setFactorSolverType("mumps")
+    x = b.duplicate()
+    solver.solve(b, x)
+    out.values[: space.numbering.num_owned] = x.getArray(readonly=True).reshape(-1, space.bs)
+    out.scatter_forward()
+    for obj in (solver, M, b, x):
+        obj.destroy()
+
+
+class _FieldMeasures:
+    """Kinetic energy, angular momentum about the centre and u_theta's relative L2 error of a grid
+    velocity, by Gauss quadrature (each functional compiled once)."""
+
+    def __init__(self, velocity, exact):
+        """``exact``: the exact velocity, a callable of the points ``(3, n)`` (:func:`_at_points`)."""
+        grids, space = {"velocity": velocity}, velocity.space
+
+        def functional(integrand):
+            return GaussForm(lambda s: integrand(s, s.grid("velocity"), s.x - ufl.as_vector(CENTRE)) * s.dx, space,
+                             grid_functions=grids, particle_values={"exact": exact})
+
+        def u_theta(d, v):
+            return (d[0] * v[1] - d[1] * v[0]) / ufl.sqrt(ufl.inner(d, d))
+
+        self.forms = {
+            "ke": functional(lambda s, v, d: 0.5 * RHO * ufl.inner(v, v)),
+            "L": functional(lambda s, v, d: RHO * (d[0] * v[1] - d[1] * v[0])),
+            "error": functional(lambda s, v, d: (u_theta(d, v) - u_theta(d, s.particle("exact"))) ** 2),
+            "norm": functional(lambda s, v, d: u_theta(d, s.particle("exact")) ** 2),
+        }
+
+    def energy(self) -> float:
+        return self.forms["ke"].assemble_scalar()
+
+    def __call__(self) -> dict:
+        value = {name: form.assemble_scalar() for name, form in self.forms.items()}
+        return {"ke": value["ke"], "L": value["L"], "profile": float(np.sqrt(value["error"] / value["norm"]))}
