@@ -13,7 +13,8 @@ The cases, the first four run with both transfers (``fempm.cases.vortices.VARIAN
   2 x 2, 3 x 3 and 4 x 4 particles per cell, and at 2 x 2 without PSPG; and how it grows in time
   on 64² and 128²;
 * both vortices with the shipped dam-break scene's particle handling (particle shifting, the
-  surface-aware volume correction: :func:`scene_vortex`), by grid, step and particles per cell.
+  surface-aware volume correction: :func:`scene_vortex`), by grid, step and particles per cell;
+* both vortices without particles, the FEM-only reference (``fempm.cases.vortices.fem_reference``).
 
 The results go to ``docs/verification/transfers.json`` and, through the template
 ``templates/verification-transfers.md``, to the transfers section of ``docs/verification.md``
@@ -94,12 +95,15 @@ def studies(full: bool) -> dict:
                            ((64, 0.4, 2), (128, 0.4, 2), (64, 0.2, 2), (64, 0.1, 2), (64, 0.4, 3), (128, 0.4, 3))]
         + [("gresho", n, c, k, 3.0 if full else 0.5) for n, c, k in
            ((32, 0.4, 2), (64, 0.4, 2), (64, 0.2, 2), (64, 0.4, 3)) + (((128, 0.4, 2),) if full else ())],
+        "fem_vortices": [("taylor_green", n, c / n, 0.25, 1e-6)
+                         for n, c in ((64, 0.4),) + (((128, 0.4),) if full else ()) + ((64, 0.2), (64, 0.1))]
+        + [("gresho", n, c / n, 3.0 if full else 0.5) for n, c in ((32, 0.4), (64, 0.4), (64, 0.2))],
     }
 
 
 RUNS = {"dambreak": dambreak_front, "taylor_green": vortices.taylor_green, "gresho": vortices.gresho,
         "column": column.rest, "loss_sources": vortices.taylor_green, "loss_growth": vortices.taylor_green,
-        "scene_vortices": scene_vortex}
+        "scene_vortices": scene_vortex, "fem_vortices": vortices.fem_reference}
 
 
 def _outcome(r: dict) -> str:
@@ -162,6 +166,16 @@ def section(data: dict) -> str:
              f"{100 * r['ke']:+.2f} %", f"{100 * r['L']:+.3f} %", pct(r["profile"]), f"{r['crowding']:.2f}",
              f"{r['wall']:.0f}", _outcome(r)]
             for r in rows.get("scene_vortices", []) if r["kind"] == "gresho"]),
+        "fem_taylor_green": pages.table(["cells", "U dt / h", "t", "numerical dissipation (1/unit time)", "wall (s)",
+                                         "outcome"], [
+            [r["cells"], f"{r['dt'] * r['cells']:g}", f"{r['t']:g}", f"{r['numerical']:.2e}", f"{r['wall']:.0f}",
+             _outcome(r)]
+            for r in rows.get("fem_vortices", []) if r["kind"] == "taylor_green"]),
+        "fem_gresho": pages.table(["cells", "max u_θ dt / h", "t", "KE change", "angular momentum change",
+                                   "u_θ L2 error (start)", "wall (s)", "outcome"], [
+            [r["cells"], f"{r['dt'] * r['cells']:g}", f"{r['t']:g}", f"{100 * r['ke']:+.3f} %", f"{100 * r['L']:+.3f} %",
+             f"{pct(r['profile'])} ({pct(r['profile0'])})", f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("fem_vortices", []) if r["kind"] == "gresho"]),
     }
     made = {f"{case}_made": _made(data[case]) if case in data else "Not run yet." for case in RUNS}
     return pages.fill("verification-transfers.md", marker=MARKER, **tables, **made)
