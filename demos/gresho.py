@@ -58,7 +58,6 @@ if MPI.COMM_WORLD.rank == 0:
     for r in rows:
         print(f"{r['variant']:12s} t = {r['t']:g}: KE {100 * r['ke']:+.2f} %, angular momentum {100 * r['L']:+.2f} %, "
               f"u_theta error {100 * r['profile']:.2f} %  ({r['wall']:.1f} s) {r['cause']}")
-    output.write_json(folder / "gresho.json", rows)
 
 # %% [markdown]
 # ## The FEM-only reference

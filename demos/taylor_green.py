@@ -69,7 +69,6 @@ if MPI.COMM_WORLD.rank == 0:
     for r in rows:
         print(f"{r['variant']:12s} nu {r['nu']:g}: numerical dissipation {r['numerical']:.2e} per unit time, "
               f"KE(0.25)/KE(0) {r['ke_end']:.5f} (exact {r['exact_end']:.5f})  ({r['wall']:.1f} s) {r['cause']}")
-    output.write_json(folder / "taylor_green.json", rows)
 
 # %% [markdown]
 # ## The FEM-only reference
