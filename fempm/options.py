@@ -125,6 +125,9 @@ class Scheme:
             and that the affine parts make vanish fast as h falls. Without any PIC share, FLIP
             increments let a column at rest grow a grid-scale velocity mode; on Q1 a share of
             100/s does not hold it either (``apic`` does: ``tests/test_implicit.py``).
+        pic_noise_only: the flowing PIC share of ``flip`` and ``affine-flip`` damps only the particles'
+            noise, their difference from the grid less its smooth part (:class:`fempm.transfer.NoiseFilter`);
+            False: the whole difference (the seed's PIC), which also damps the resolved flow.
         rest_pic_rate: PIC share per unit time (1/s) of water at rest under gravity, for ``flip`` and
             ``affine-flip``: a particle where the grid's new velocity is below
             ``transfer.REST_SPEED sqrt(|g| h)`` takes a share rising linearly as its speed falls, from
@@ -157,6 +160,7 @@ class Scheme:
     transfer: str = "affine-flip"
     pic_blend: float = 0.0
     pic_rate: float = 100.0
+    pic_noise_only: bool = False
     rest_pic_rate: float = 300.0
     forms: str | Path = "incompressible"
     initial_acceleration: str = "solved"

@@ -47,6 +47,8 @@ __all__ = [
     "affine_particles_to_grid",
     "angular_momentum",
     "function_nodes",
+    "NOISE_FILTERED",
+    "NoiseFilter",
     "pic_share",
     "project_state",
     "update_state",
@@ -490,7 +492,7 @@ _G2P_RULES = ("apic", "tpic")
 
 
 def update_state(g2p: GridFunction, particles, kind: str, share: float, values: np.ndarray,
-                 divergence: np.ndarray, rest: tuple[float, float] = (0.0, 0.0)):
+                 divergence: np.ndarray, rest: tuple[float, float] = (0.0, 0.0), noise: NoiseFilter | None = None):
     """G2P of velocity and acceleration from ``g2p`` (fields ``dv``, ``da``: the step's changes;
     ``v``, ``a``: the new values), in one pass over the particles.
 
@@ -498,11 +500,18 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
     ``rest[1]`` rising linearly to ``rest[0]`` at zero (:func:`rest_share`); for the affine kinds also the affine
     parts of ``v_{n+1}`` and ``a_{n+1}``, taken whole (``B_p D_p^-1`` for ``apic`` and
     ``affine-flip``, the grid gradient for ``tpic``). The acceleration, Newmark's state, goes
-    as the velocity, so that the next step starts from one transferred pair.
+    as the velocity, so that the next step starts from one transferred pair. With a ``noise``
+    filter (``flip`` and ``affine-flip``) the flowing ``share`` takes only the particles' noise
+    (:class:`NoiseFilter`), after still water's share, rising from 0 to ``rest[0]``, has taken the whole
+    difference.
 
     For the rest of a caller's G2P, into its buffers (reused from step to step): ``values``
     ``(n, bs)``, all of ``g2p`` at the particles, and ``divergence`` ``(n,)``, ``div v_{n+1}`` there.
     """
+    if noise is not None and kind in NOISE_FILTERED:
+        update_state(g2p, particles, kind, 0.0, values, divergence, rest)
+        noise.damp(g2p.space, particles, values, share)
+        return
     space = g2p.space
     phi, lfun = space.tabulate_particles(particles, order=1, exact=False)
     if kind == "flip":
@@ -514,6 +523,44 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
                float(rest[0]), float(rest[1]), rule,
                space.grid.h, _moment_floor(space.grid.h), particles["velocity"], particles["acceleration"], *affine,
                values, divergence)
+
+
+#: the transfers whose PIC share a :class:`NoiseFilter` can restrict to the particles' noise
+NOISE_FILTERED = ("flip", "affine-flip")
+
+
+class NoiseFilter:
+    """A PIC share that damps only what the grid cannot see.
+
+    A particle's difference from the grid, ``d_p = v_p - v_{n+1}(x_p)`` (likewise the acceleration),
+    holds a smooth part the grid resolves (near a kink of the flow, or where the grid lags a
+    particle's own history) and particle-to-particle noise in the null space of P2G, which FLIP
+    never damps. The smooth part is ``S d``, the difference taken to the grid and back
+    (mass-weighted P2G, G2P); the share damps ``d - S d`` alone:
+    ``v_p <- v_p - k (d_p - (S d)_p)``. Linear momentum is kept (``sum_p m_p (S d)_p = sum_p m_p d_p``).
+    Like XPIC (Hammerquist & Nairn 2017), it filters the null-space noise without PIC's smoothing of
+    the resolved flow, which a whole share damps at its rate however fine the step.
+    """
+
+    def __init__(self, basis):
+        self._grid = GridFunction(Space(basis, {"m": 1, "d": 4}), "noise")
+
+    def damp(self, space: Space, particles, values: np.ndarray, share: float):
+        """Take ``share`` of the noise off the particles' velocity and acceleration; ``values``: the grid
+        fields of ``space`` (``v``, ``a``) at the particles (:func:`update_state`'s buffer)."""
+        if share == 0.0:
+            return
+        v, a = space.field_offset("v"), space.field_offset("a")
+        state = np.hstack([particles["velocity"], particles["acceleration"]])
+        difference = state - np.hstack([values[:, v:v + 2], values[:, a:a + 2]])
+        mass = particles["mass"][:, None]
+        grid = particles_to_grid(self._grid.space, particles, np.hstack([mass, mass * difference]), out=self._grid)
+        nodal_mass = grid.values[:, :1]
+        grid.values[:, 1:] = np.divide(grid.values[:, 1:], nodal_mass, out=np.zeros_like(grid.values[:, 1:]),
+                                       where=nodal_mass > 0)
+        noise = difference - grid_to_particles(grid, particles)[:, 1:]
+        particles["velocity"][:] -= share * noise[:, :2]
+        particles["acceleration"][:] -= share * noise[:, 2:]
 
 
 @numba.njit(cache=True, inline="always")
