@@ -14,6 +14,8 @@ The cases, the first four run with both transfers (``fempm.cases.vortices.VARIAN
   on 64² and 128²;
 * both vortices with the shipped dam-break scene's particle handling (particle shifting, the
   surface-aware volume correction: :func:`scene_vortex`), by grid, step and particles per cell;
+* both vortices so handled with the PIC share on the particles' noise alone (``noise_filter``:
+  ``Scheme.pic_noise_only``, :class:`fempm.transfer.NoiseFilter`) beside the whole share;
 * both vortices without particles, the FEM-only reference (``fempm.cases.vortices.fem_reference``).
 
 The results go to ``docs/verification/transfers.json`` and, through the template
@@ -62,20 +64,21 @@ def dambreak_front(variant: str, cells: int = 40, dt: float = 1e-3, end: float =
             "t": run.time, "wall": run.wall}
 
 
-def scene_vortex(kind: str, cells: int, courant: float, per_cell: int, end: float) -> dict:
+def scene_vortex(kind: str, cells: int, courant: float, per_cell: int, end: float, noise_only: bool = False) -> dict:
     """A vortex (``taylor_green`` at nu = 1e-6, or ``gresho``) handled as the shipped dam-break scene
     handles its particles (``scenes/dambreak.toml``): affine-FLIP, particle shifting of strength
     :data:`fempm.cases.vortices.SHIFTING`, and for Gresho the surface-aware volume correction (in a
     closed box: of both signs everywhere); Taylor-Green runs without a correction, as in its own study.
-    ``courant``: U dt / h (Gresho: max u_theta dt / h)."""
-    dt = courant / cells
+    ``courant``: U dt / h (Gresho: max u_theta dt / h); ``noise_only``: the PIC share on the particles'
+    noise alone (:data:`fempm.cases.vortices.NOISE_ONLY`)."""
+    dt, pic = courant / cells, vortices.NOISE_ONLY if noise_only else None
     if kind == "taylor_green":
         run = vortices.taylor_green("affine-FLIP", cells, dt, 1e-6, end=end, per_cell=per_cell,
-                                    shifting=vortices.SHIFTING)
+                                    shifting=vortices.SHIFTING, pic=pic)
     else:
         run = vortices.gresho("affine-FLIP", cells, dt, end=end, per_cell=per_cell, shifting=vortices.SHIFTING,
-                              surface_aware=True)
-    return {**run, "kind": kind, "courant": courant, "per_cell": per_cell}
+                              surface_aware=True, pic=pic)
+    return {**run, "kind": kind, "courant": courant, "per_cell": per_cell, "noise_only": noise_only}
 
 
 def studies(full: bool) -> dict:
@@ -95,6 +98,8 @@ def studies(full: bool) -> dict:
                            ((64, 0.4, 2), (128, 0.4, 2), (64, 0.2, 2), (64, 0.1, 2), (64, 0.4, 3), (128, 0.4, 3))]
         + [("gresho", n, c, k, 3.0 if full else 0.5) for n, c, k in
            ((32, 0.4, 2), (64, 0.4, 2), (64, 0.2, 2), (64, 0.4, 3)) + (((128, 0.4, 2),) if full else ())],
+        "noise_filter": [("gresho", 64, 0.4, 2, 3.0 if full else 0.5, noise) for noise in (False, True)]
+        + [("taylor_green", n, c, 2, 0.25, noise) for n, c in ((64, 0.4), (64, 0.1), (128, 0.4)) for noise in (False, True)],
         "fem_vortices": [("taylor_green", n, c / n, 0.25, 1e-6)
                          for n, c in ((64, 0.4),) + (((128, 0.4),) if full else ()) + ((64, 0.2), (64, 0.1))]
         + [("gresho", n, c / n, 3.0 if full else 0.5) for n, c in ((32, 0.4), (64, 0.4), (64, 0.2))],
@@ -103,7 +108,7 @@ def studies(full: bool) -> dict:
 
 RUNS = {"dambreak": dambreak_front, "taylor_green": vortices.taylor_green, "gresho": vortices.gresho,
         "column": column.rest, "loss_sources": vortices.taylor_green, "loss_growth": vortices.taylor_green,
-        "scene_vortices": scene_vortex, "fem_vortices": vortices.fem_reference}
+        "scene_vortices": scene_vortex, "noise_filter": scene_vortex, "fem_vortices": vortices.fem_reference}
 
 
 def _outcome(r: dict) -> str:
@@ -166,6 +171,14 @@ def section(data: dict) -> str:
              f"{100 * r['ke']:+.2f} %", f"{100 * r['L']:+.3f} %", pct(r["profile"]), f"{r['crowding']:.2f}",
              f"{r['wall']:.0f}", _outcome(r)]
             for r in rows.get("scene_vortices", []) if r["kind"] == "gresho"]),
+        "noise_filter": pages.table(["vortex", "cells", "U dt / h", "t", "PIC share", "KE change or loss per unit time",
+                                     "angular momentum change", "u_θ L2 error", "wall (s)", "outcome"], [
+            [r["kind"].replace("_", "–").title(), r["cells"], f"{r['courant']:g}", f"{r['t']:g}",
+             "noise only, 300/s" if r["noise_only"] else "whole, 100/s",
+             f"{100 * r['ke']:+.2f} %" if r["kind"] == "gresho" else f"{r['numerical']:.2e}",
+             f"{100 * r['L']:+.3f} %" if r["kind"] == "gresho" else "—",
+             pct(r["profile"]) if r["kind"] == "gresho" else "—", f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("noise_filter", [])]),
         "fem_taylor_green": pages.table(["cells", "U dt / h", "t", "numerical dissipation (1/unit time)", "wall (s)",
                                          "outcome"], [
             [r["cells"], f"{r['dt'] * r['cells']:g}", f"{r['t']:g}", f"{r['numerical']:.2e}", f"{r['wall']:.0f}",

@@ -42,12 +42,15 @@ from fempm.particles import Particles, Rectangle
 from fempm.quadrature import GaussForm
 from fempm.verification import advance
 
-__all__ = ["RHO", "SHIFTING", "VARIANTS", "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy",
+__all__ = ["NOISE_ONLY", "RHO", "SHIFTING", "VARIANTS", "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy",
            "taylor_green"]
 
 RHO = 1000.0  #: kg/m^3
 #: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
 VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0, "rest_pic_rate": 0.0}, "affine-FLIP": {}}
+#: the PIC share restricted to the particles' noise (:class:`fempm.transfer.NoiseFilter`), at 300/s: an option
+#: the studies run beside the default (``pic``)
+NOISE_ONLY = {"pic_noise_only": True, "pic_rate": 300.0}
 #: the shipped dam break's particle shifting (``scenes/dambreak.toml``, ``solver.shifting``; fempm.shifting)
 SHIFTING = 4.0
 CENTRE = np.array([0.5, 0.5])
@@ -56,17 +59,18 @@ CENTRE = np.array([0.5, 0.5])
 def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
                comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha, per_cell: int = 2,
                pspg: bool = Scheme.pspg, shifting: float = Scheme.shifting, solver_type=ImplicitSolver,
-               surface_aware: bool = Scheme.surface_aware) -> ImplicitSolver:
+               surface_aware: bool = Scheme.surface_aware, pic: dict | None = None) -> ImplicitSolver:
     """The unit slip box filled with ``per_cell`` x ``per_cell`` particles per cell at the given
     velocity and acceleration (functions of the positions returning ``(values (n, 2), gradients
     (n, 2, 2))``), with the volume correction ``alpha`` (``surface_aware``: :attr:`Scheme.surface_aware`),
-    PSPG on or off and particle ``shifting``; ``solver_type`` makes the solver from the basis, particles,
+    PSPG on or off and particle ``shifting``; ``pic``: :class:`Scheme` fields of the PIC share over the
+    variant's (e.g. :data:`NOISE_ONLY`); ``solver_type`` makes the solver from the basis, particles,
     physics and scheme."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
     water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=per_cell, density=RHO)
     scheme = Scheme(dt=dt, alpha=alpha, surface_aware=surface_aware, pspg=pspg, shifting=shifting,
-                    initial_acceleration="given", **VARIANTS[variant])
+                    initial_acceleration="given", **{**VARIANTS[variant], **(pic or {})})
     transfer.add_affine_fields(water, scheme.transfer)
     for name, field in (("velocity", velocity), ("acceleration", acceleration)):
         value, grad = field(water.x)
@@ -118,16 +122,16 @@ def _window_losses(t: np.ndarray, ke: np.ndarray, viscous: float, windows: int) 
 
 def taylor_green(variant: str, cells: int, dt: float, nu: float, end: float = 0.25, U: float = 1.0,
                  basis: str = "bspline", per_cell: int = 2, pspg: bool = Scheme.pspg,
-                 shifting: float = Scheme.shifting, solver_type=ImplicitSolver) -> dict:
+                 shifting: float = Scheme.shifting, solver_type=ImplicitSolver, pic: dict | None = None) -> dict:
     """The Taylor-Green vortex to ``end``: ``numerical`` is the fitted ``-d ln KE/dt - 4 pi^2 nu``.
 
     Also ``rate`` (fitted), ``viscous`` (``4 pi^2 nu``), ``windows`` (the loss over each of
     :data:`WINDOWS` equal spans), ``ke_end`` and ``exact_end`` (KE over its start), ``status``,
-    ``cause``, ``t``, ``wall``, and the run's ``per_cell``, ``pspg`` and ``shifting`` (``solver_type``: see
-    :func:`box_solver`).
+    ``cause``, ``t``, ``wall``, and the run's ``per_cell``, ``pspg`` and ``shifting`` (``solver_type``, ``pic``:
+    see :func:`box_solver`).
     """
     solver = box_solver(variant, cells, dt, nu, *_taylor_green_fields(U, nu), basis, alpha=0.0,
-                        per_cell=per_cell, pspg=pspg, shifting=shifting, solver_type=solver_type)
+                        per_cell=per_cell, pspg=pspg, shifting=shifting, solver_type=solver_type, pic=pic)
     times, energy = [0.0], [kinetic_energy(solver.particles)]
 
     def each(s):
@@ -212,14 +216,14 @@ def gresho_measures(solver) -> dict:
 
 def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2,
            shifting: float = Scheme.shifting, solver_type=ImplicitSolver, alpha: float = Scheme.alpha,
-           surface_aware: bool = Scheme.surface_aware) -> dict:
+           surface_aware: bool = Scheme.surface_aware, pic: dict | None = None) -> dict:
     """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell, particle ``shifting``):
     relative changes of kinetic energy (``ke``) and angular momentum (``L``), the u_theta error at the end
     (``profile``) and at the start (``profile0``), the largest smoothed density over the water's at the
-    end (``crowding``, eq. 2: where particles gather); ``solver_type``, ``alpha``, ``surface_aware``: see
+    end (``crowding``, eq. 2: where particles gather); ``solver_type``, ``alpha``, ``surface_aware``, ``pic``: see
     :func:`box_solver`."""
     solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, alpha=alpha, per_cell=per_cell,
-                        shifting=shifting, solver_type=solver_type, surface_aware=surface_aware)
+                        shifting=shifting, solver_type=solver_type, surface_aware=surface_aware, pic=pic)
     start = gresho_measures(solver)
     run = advance(solver, end)
     final = gresho_measures(solver)
