@@ -138,7 +138,8 @@ class ImplicitSolver(Stepper):
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
         walls = physics.wall_conditions()
-        self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES])
+        self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES],
+                                           scheme.shifting_keeps_angular_momentum)
                           if scheme.shifting > 0 else None)
         self._values, self._divergence = np.empty((0, self._g2p.space.bs)), np.empty(0)  # G2P's (_particle_room)
         self._noise = (transfer.NoiseFilter(basis) if scheme.pic_noise_only and scheme.transfer in transfer.NOISE_FILTERED

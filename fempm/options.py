@@ -111,6 +111,8 @@ class Scheme:
             particles whose neighbourhood is full move down the gradient of the particles'
             concentration, relaxing ``A`` times the spacings they moved in the step of their
             disorder, at most 1.5 times its stiffest mode); 0: none.
+        shifting_keeps_angular_momentum: the shifts take a common turn so that they add no angular
+            momentum (:class:`fempm.shifting.ParticleShifting`); False: positions only.
         pspg: PSPG stabilisation (method.md: without it the run diverges).
         transfer: how velocity and acceleration go between particles and grid, one of
             :data:`TRANSFERS` (:mod:`fempm.transfer`): ``flip`` (FLIP increments blended with PIC,
@@ -156,6 +158,7 @@ class Scheme:
     alpha_rate: float = 100.0
     surface_aware: bool = False
     shifting: float = 0.0
+    shifting_keeps_angular_momentum: bool = False
     pspg: bool = True
     transfer: str = "affine-flip"
     pic_blend: float = 0.0

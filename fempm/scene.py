@@ -178,6 +178,7 @@ class Solver:
     transfer: str = key(choice(*TRANSFERS), Scheme.transfer)
     surface_aware: bool = key(boolean, Scheme.surface_aware)
     shifting: float = key(non_negative, Scheme.shifting)
+    shifting_keeps_angular_momentum: bool = key(boolean, Scheme.shifting_keeps_angular_momentum)
     pic_blend: float = key(fraction, Scheme.pic_blend)
     pic_rate: float = key(non_negative, Scheme.pic_rate, unit="1/s")
     pic_noise_only: bool = key(boolean, Scheme.pic_noise_only)

@@ -22,7 +22,11 @@ The shift moves the quadrature points, not the material: a particle keeps its va
 its affine parts, ``v += C dr``, particles next to a free surface, shifted step after step the same
 way, gathered speed until the energy check stopped the dam break at half the seed's step.) The
 moved particles' mean shift (mass-weighted, over all ranks) is taken off theirs, so that shifting
-moves no mass against gravity: it leaves the kinetic and the potential energy as they were. The
+moves no mass against gravity: it leaves the kinetic and the potential energy as they were. A shift
+``dr`` of a particle that keeps its velocity adds ``m dr x v`` to the angular momentum (in a vortex
+the shifts' sum drifts it steadily). Asked to keep it (``Scheme.shifting_keeps_angular_momentum``), the
+moved particles also take a common ``lambda z x (v - v_mean)`` (``v_mean`` their mean velocity, so the
+mean shift stays zero) with the one ``lambda`` over all ranks that makes the shifts add none. The
 slip walls of the grid's sides are mirrors (the neighbours' images across them count), so a particle
 next to a wall sees a full neighbourhood. Only particles whose concentration ``sum_j V_j W_ij`` is
 at least ``FULL`` of a lattice's move: along a free surface, where the kernel reaches into air, a
@@ -150,12 +154,26 @@ def _shifts(v, grad, movable, dt, rate, stiffness, cap, mass, shifts):
 
 
 @numba.njit(cache=True)
-def _move(x, movable, mean, shifts):
-    """Less their mean, the ``movable`` particles shifted."""
+def _turning(v, movable, mass, mean, mean_velocity, shifts):
+    """Over the ``movable`` particles: ``sum m (dr - mean) x v``, the angular momentum the shifts less their
+    mean would add, and ``sum m |v - mean_velocity|^2``."""
+    total = np.zeros(2)
+    for i in range(v.shape[0]):
+        if movable[i]:
+            dx, dy = shifts[i, 0] - mean[0], shifts[i, 1] - mean[1]
+            ux, uy = v[i, 0] - mean_velocity[0], v[i, 1] - mean_velocity[1]
+            total[0] += mass[i] * (dx * v[i, 1] - dy * v[i, 0])
+            total[1] += mass[i] * (ux * ux + uy * uy)
+    return total
+
+
+@numba.njit(cache=True)
+def _move(x, v, movable, mean, mean_velocity, turn, shifts):
+    """The ``movable`` particles shifted, less the shifts' mean and plus ``turn z x (v - mean_velocity)``."""
     for i in range(x.shape[0]):
         if movable[i]:
-            shifts[i, 0] -= mean[0]
-            shifts[i, 1] -= mean[1]
+            shifts[i, 0] += -mean[0] - turn * (v[i, 1] - mean_velocity[1])
+            shifts[i, 1] += -mean[1] + turn * (v[i, 0] - mean_velocity[0])
             x[i, 0] += shifts[i, 0]
             x[i, 1] += shifts[i, 1]
 
@@ -205,10 +223,12 @@ class ParticleShifting:
         particles: the particles (their median volume sets the spacing ``dp``; collective).
         strength: ``A``, the relaxation per spacing moved.
         mirror: which of the grid's sides (left, right, bottom, top) reflect: its walls.
+        keep_angular_momentum: the shifts take the common turn that makes them add no angular momentum.
     """
 
-    def __init__(self, particles, strength: float, mirror):
+    def __init__(self, particles, strength: float, mirror, keep_angular_momentum: bool = False):
         self.strength, self.mirror = float(strength), np.asarray(mirror, dtype=np.bool_)
+        self.keep_angular_momentum = keep_angular_momentum
         self.dp = spacing(particles)
         self.hk = SMOOTHING * self.dp
         self.w_dp = kernel_at_spacing(self.hk, self.dp)
@@ -223,7 +243,15 @@ class ParticleShifting:
         concentration_gradients(near, near_volume, n, grid.lower, grid.upper, self.mirror, self.hk, self.w_dp,
                                 grad, conc)
         movable = conc >= self.full
-        total = grid.comm.allreduce(_shifts(particles["velocity"], grad, movable, dt, self.strength / dp,
-                                            STIFFNESS / dp**2, MAX_SHIFT * dp, particles["mass"], shifts))
-        _move(x, movable, total[1:] / total[0] if total[0] > 0 else np.zeros(2), shifts)
+        v, mass = particles["velocity"], particles["mass"]
+        total = grid.comm.allreduce(_shifts(v, grad, movable, dt, self.strength / dp, STIFFNESS / dp**2,
+                                            MAX_SHIFT * dp, mass, shifts))
+        if total[0] == 0:
+            return shifts
+        mean, mean_velocity, turn = total[1:] / total[0], np.zeros(2), 0.0
+        if self.keep_angular_momentum:
+            mean_velocity = grid.comm.allreduce(mass[movable] @ v[movable]) / total[0]
+            turning, spread = grid.comm.allreduce(_turning(v, movable, mass, mean, mean_velocity, shifts))
+            turn = turning / spread if spread > 0 else 0.0
+        _move(x, v, movable, mean, mean_velocity, turn, shifts)
         return shifts
