@@ -96,6 +96,18 @@ def test_the_pic_share_on_the_noise_alone_keeps_more_of_the_gresho_vortex():
     assert r["profile"] < 0.019  # measured 1.86 % (2.60 %)
 
 
+def test_shifts_that_add_no_angular_momentum_keep_the_gresho_vortex_s_angular_momentum():
+    """As above, with the shifts also keeping the angular momentum (vortices.NOISE_ONLY_TURNING,
+    shifting.ParticleShifting): the angular momentum's drift is a sixth (t = 3: ``transfer_study.py --full
+    --case noise_filter``)."""
+    r = vortices.gresho("affine-FLIP", 64, 0.4 / 64, 0.5, shifting=vortices.SHIFTING, surface_aware=True,
+                        pic=vortices.NOISE_ONLY_TURNING)
+    print(r)
+    assert r["status"] == "completed"
+    assert -0.0025 < r["ke"] < 0  # measured -0.216 % (the noise-only share alone: -0.471 %)
+    assert abs(r["L"]) < 0.0003  # measured -0.019 % (-0.124 %)
+
+
 def test_column_stays_at_rest_with_affine_flip():
     """The dam-break column held 0.5 s (dt 1 ms): volume within 0.2 %, speeds below 1e-3 m/s."""
     r = column.rest("affine-FLIP", 0.5)

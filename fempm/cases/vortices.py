@@ -42,7 +42,7 @@ from fempm.particles import Particles, Rectangle
 from fempm.quadrature import GaussForm
 from fempm.verification import advance
 
-__all__ = ["NOISE_ONLY", "RHO", "SHIFTING", "VARIANTS", "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy",
+__all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "VARIANTS", "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy",
            "taylor_green"]
 
 RHO = 1000.0  #: kg/m^3
@@ -51,6 +51,8 @@ VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0, 
 #: the PIC share restricted to the particles' noise (:class:`fempm.transfer.NoiseFilter`), at 300/s: an option
 #: the studies run beside the default (``pic``)
 NOISE_ONLY = {"pic_noise_only": True, "pic_rate": 300.0}
+#: with it, shifts that add no angular momentum (``Scheme.shifting_keeps_angular_momentum``)
+NOISE_ONLY_TURNING = {**NOISE_ONLY, "shifting_keeps_angular_momentum": True}
 #: the shipped dam break's particle shifting (``scenes/dambreak.toml``, ``solver.shifting``; fempm.shifting)
 SHIFTING = 4.0
 CENTRE = np.array([0.5, 0.5])
@@ -63,8 +65,8 @@ def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceler
     """The unit slip box filled with ``per_cell`` x ``per_cell`` particles per cell at the given
     velocity and acceleration (functions of the positions returning ``(values (n, 2), gradients
     (n, 2, 2))``), with the volume correction ``alpha`` (``surface_aware``: :attr:`Scheme.surface_aware`),
-    PSPG on or off and particle ``shifting``; ``pic``: :class:`Scheme` fields of the PIC share over the
-    variant's (e.g. :data:`NOISE_ONLY`); ``solver_type`` makes the solver from the basis, particles,
+    PSPG on or off and particle ``shifting``; ``pic``: :class:`Scheme` fields of the PIC share and the
+    shifting over the variant's (e.g. :data:`NOISE_ONLY`); ``solver_type`` makes the solver from the basis, particles,
     physics and scheme."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
