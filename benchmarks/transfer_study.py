@@ -74,7 +74,7 @@ def scene_vortex(kind: str, cells: int, courant: float, per_cell: int, end: floa
     noise alone (:data:`fempm.cases.vortices.NOISE_ONLY`), ``turning`` with it shifts that add no angular
     momentum (:data:`fempm.cases.vortices.NOISE_ONLY_TURNING`)."""
     dt = courant / cells
-    pic = vortices.NOISE_ONLY_TURNING if turning else vortices.NOISE_ONLY if noise_only else None
+    pic = vortices.NOISE_ONLY_TURNING if turning else vortices.NOISE_ONLY if noise_only else vortices.WHOLE_SHARE
     if kind == "taylor_green":
         run = vortices.taylor_green("affine-FLIP", cells, dt, 1e-6, end=end, per_cell=per_cell,
                                     shifting=vortices.SHIFTING, pic=pic)
@@ -101,8 +101,9 @@ def studies(full: bool) -> dict:
                            ((64, 0.4, 2), (128, 0.4, 2), (64, 0.2, 2), (64, 0.1, 2), (64, 0.4, 3), (128, 0.4, 3))]
         + [("gresho", n, c, k, 3.0 if full else 0.5) for n, c, k in
            ((32, 0.4, 2), (64, 0.4, 2), (64, 0.2, 2), (64, 0.4, 3)) + (((128, 0.4, 2),) if full else ())],
-        "noise_filter": [("gresho", 64, 0.4, 2, 3.0 if full else 0.5, noise) for noise in (False, True)]
-        + [("gresho", 64, 0.4, k, 3.0 if full else 0.5, True, True) for k in (2, 3)]
+        "noise_filter": [("gresho", 64, c, 2, 3.0 if full else 0.5, noise, turning) for c in (0.4, 0.2)
+                         for noise, turning in ((False, False), (True, False), (True, True))]
+        + [("gresho", 64, 0.4, 3, 3.0 if full else 0.5, True, True)]
         + [("taylor_green", n, c, 2, 0.25, noise) for n, c in ((64, 0.4), (64, 0.1), (128, 0.4)) for noise in (False, True)],
         "fem_vortices": [("taylor_green", n, c / n, 0.25, 1e-6)
                          for n, c in ((64, 0.4),) + (((128, 0.4),) if full else ()) + ((64, 0.2), (64, 0.1))]
