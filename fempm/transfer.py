@@ -544,23 +544,60 @@ class NoiseFilter:
 
     def __init__(self, basis):
         self._grid = GridFunction(Space(basis, {"m": 1, "d": 4}), "noise")
+        self._difference = np.empty((0, 4))
 
     def damp(self, space: Space, particles, values: np.ndarray, share: float):
         """Take ``share`` of the noise off the particles' velocity and acceleration; ``values``: the grid
         fields of ``space`` (``v``, ``a``) at the particles (:func:`update_state`'s buffer)."""
         if share == 0.0:
             return
-        v, a = space.field_offset("v"), space.field_offset("a")
-        state = np.hstack([particles["velocity"], particles["acceleration"]])
-        difference = state - np.hstack([values[:, v:v + 2], values[:, a:a + 2]])
-        mass = particles["mass"][:, None]
-        grid = particles_to_grid(self._grid.space, particles, np.hstack([mass, mass * difference]), out=self._grid)
-        nodal_mass = grid.values[:, :1]
-        grid.values[:, 1:] = np.divide(grid.values[:, 1:], nodal_mass, out=np.zeros_like(grid.values[:, 1:]),
-                                       where=nodal_mass > 0)
-        noise = difference - grid_to_particles(grid, particles)[:, 1:]
-        particles["velocity"][:] -= share * noise[:, :2]
-        particles["acceleration"][:] -= share * noise[:, 2:]
+        phi, lfun = space.tabulate_particles(particles, order=0, exact=False)
+        if self._difference.shape[0] != len(particles):
+            self._difference = np.empty((len(particles), 4))
+        grid, velocity, acceleration = self._grid, particles["velocity"], particles["acceleration"]
+        grid.values[:] = 0.0
+        _noise_to_grid(phi, lfun, particles["mass"], velocity, acceleration, values, space.field_offset("v"),
+                       space.field_offset("a"), self._difference, grid.values)
+        grid.scatter_reverse_add()
+        grid.scatter_forward()
+        _per_unit_mass(grid.values)
+        _take_noise(phi, lfun, grid.values, self._difference, float(share), velocity, acceleration)
+
+
+@numba.njit(cache=True)
+def _noise_to_grid(phi, lfun, mass, velocity, acceleration, values, v, a, difference, out):
+    """``difference[p]``: the particle's velocity and acceleration less the grid's (``values``, fields at
+    offsets ``v``, ``a``); P2G of the mass and the mass-weighted difference into ``out`` (m, d0..d3)."""
+    for p in range(lfun.shape[0]):
+        m = mass[p]
+        for c in range(2):
+            difference[p, c] = velocity[p, c] - values[p, v + c]
+            difference[p, 2 + c] = acceleration[p, c] - values[p, a + c]
+        for l in range(lfun.shape[1]):
+            f, w = lfun[p, l], phi[p, 0, l]
+            out[f, 0] += w * m
+            for c in range(4):
+                out[f, 1 + c] += w * (m * difference[p, c])
+
+
+@numba.njit(cache=True)
+def _per_unit_mass(grid):
+    """The grid's mass-weighted difference over its nodal mass (0 where there is none)."""
+    for f in range(grid.shape[0]):
+        m = grid[f, 0]
+        for c in range(1, grid.shape[1]):
+            grid[f, c] = grid[f, c] / m if m > 0 else 0.0
+
+
+@numba.njit(cache=True)
+def _take_noise(phi, lfun, grid, difference, share, velocity, acceleration):
+    """``state_p -= share (d_p - (S d)_p)``, ``S d`` the grid's difference at the particle."""
+    smooth = np.empty((1, grid.shape[1]))
+    for p in range(lfun.shape[0]):
+        particle_jets(phi[p], lfun[p], grid, smooth)
+        for c in range(2):
+            velocity[p, c] -= share * (difference[p, c] - smooth[0, 1 + c])
+            acceleration[p, c] -= share * (difference[p, 2 + c] - smooth[0, 3 + c])
 
 
 @numba.njit(cache=True, inline="always")
