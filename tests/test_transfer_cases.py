@@ -195,6 +195,21 @@ def test_gresho_vortex_to_t_3():
 
 
 @pytest.mark.full
+def test_gresho_vortex_with_both_options_at_half_the_step_meets_issue_11():
+    """64², t = 3, max u dt/h = 0.2, 2 × 2 per cell, the PIC share on the noise alone and shifts that add no
+    angular momentum (vortices.NOISE_ONLY_TURNING): kinetic energy within 1 % and angular momentum within 0.1 %,
+    at the end and, to the measured value, over the run. The default's whole share loses more at this step
+    than at twice it (-2.97 % against -2.61 %; transfer_study.py --full --case noise_filter)."""
+    r = vortices.gresho("affine-FLIP", 64, 0.2 / 64, 3.0, shifting=vortices.SHIFTING, surface_aware=True,
+                        pic=vortices.NOISE_ONLY_TURNING)
+    print(r)
+    assert r["status"] == "completed"
+    assert -0.0060 < r["ke"] < 0  # measured -0.52 % (at max u dt/h 0.4: -1.01 %)
+    assert abs(r["L"]) < 0.0005  # measured -0.034 %
+    assert abs(r["L_largest"]) < 0.0011  # measured -0.100 % (the FEM-only reference's own: +0.139 %)
+
+
+@pytest.mark.full
 def test_gresho_vortex_with_both_options_at_3_by_3_per_cell_keeps_its_energy_to_1_percent():
     """64², t = 3, 3 × 3 per cell, the PIC share on the noise alone and shifts that add no angular momentum
     (vortices.NOISE_ONLY_TURNING): issue 11's kinetic energy within 1 % holds. Its angular momentum within

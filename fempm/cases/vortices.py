@@ -42,8 +42,9 @@ from fempm.particles import Particles, Rectangle
 from fempm.quadrature import GaussForm
 from fempm.verification import advance
 
-__all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "VARIANTS", "WHOLE_SHARE", "angular_momentum", "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy",
-           "largest_change", "taylor_green"]
+__all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "VARIANTS", "WHOLE_SHARE", "angular_momentum",
+           "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "largest_change",
+           "taylor_green"]
 
 RHO = 1000.0  #: kg/m^3
 #: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
@@ -249,7 +250,8 @@ def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "
                                           op=MPI.MAX) / RHO
     return {"variant": variant, "cells": cells, "dt": dt, "ke": final["ke"] / start["ke"] - 1,
             "L": final["L"] / start["L"] - 1, "L_largest": largest_change(history, start["L"]),
-            "profile": final["profile"], "profile0": start["profile"], "crowding": crowding, "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
+            "profile": final["profile"], "profile0": start["profile"], "crowding": crowding, "status": run.status,
+            "cause": run.cause, "t": run.time, "wall": run.wall}
 
 
 # -- FEM-only reference -----------------------------------------------------------------------------
@@ -282,7 +284,8 @@ def fem_reference(kind: str, cells: int, dt: float, end: float, nu: float = 0.0,
     if kind == "taylor_green":
         return {**result, **_decay(times, energy, nu)}
     return {**result, "ke": final["ke"] / start["ke"] - 1, "L": final["L"] / start["L"] - 1,
-            "L_largest": largest_change(moments, start["L"]), "profile": final["profile"], "profile0": start["profile"]}
+            "L_largest": largest_change(moments, start["L"]), "profile": final["profile"],
+            "profile0": start["profile"]}
 
 
 def _at_points(velocity):
