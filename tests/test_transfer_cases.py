@@ -48,7 +48,7 @@ def test_taylor_green_at_re_100_decays_at_the_viscous_rate():
     print(new["numerical"], old["numerical"], new["viscous"])
     assert new["status"] == old["status"] == "completed"
     assert 0 < new["numerical"] < 0.0025  # measured 1.70e-3 per unit time (the viscous rate 0.395)
-    assert abs(new["ke_end"] / new["exact_end"] - 1) < 6e-4  # measured 3.9e-4 below exp(-8 pi^2 nu t)
+    assert abs(new["ke_end"] / new["exact_end"] - 1) < 6e-4  # measured 3.9e-4 below the exact exp(-4 pi^2 nu t)
     assert old["numerical"] > 0.06  # measured 7.58e-2
 
 
