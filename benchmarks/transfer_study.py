@@ -14,8 +14,8 @@ The cases, the first four run with both transfers (``fempm.cases.vortices.VARIAN
   on 64² and 128²;
 * both vortices with the shipped dam-break scene's particle handling (particle shifting, the
   surface-aware volume correction: :func:`scene_vortex`), by grid, step and particles per cell;
-* both vortices so handled with the PIC share on the particles' noise alone (``noise_filter``:
-  ``Scheme.pic_noise_only``, :class:`fempm.transfer.NoiseFilter`) beside the whole share;
+* both vortices so handled with the default PIC shares (a whole share, then one on the particles' noise:
+  ``noise_filter``, ``Scheme.noise_rate``, :class:`fempm.transfer.NoiseFilter`) beside each share alone;
 * both vortices without particles, the FEM-only reference (``fempm.cases.vortices.fem_reference``).
 
 The results go to ``docs/verification/transfers.json`` and, through the template
@@ -64,24 +64,31 @@ def dambreak_front(variant: str, cells: int = 40, dt: float = 1e-3, end: float =
             "t": run.time, "wall": run.wall}
 
 
-def scene_vortex(kind: str, cells: int, courant: float, per_cell: int, end: float, noise_only: bool = False,
+#: the PIC shares :func:`scene_vortex` compares, by name: the default (a whole share at 30/s, then one on the
+#: noise at 300/s), the whole share alone at 100/s (the default before) and the share on the noise alone
+SHARES = {"default": {}, "whole": vortices.WHOLE_SHARE, "noise": vortices.NOISE_ONLY}
+#: how the noise_filter table names them
+SHARE_NAMES = {"default": "default: whole 30/s + noise 300/s", "whole": "whole alone, 100/s",
+               "noise": "noise alone, 300/s"}
+
+
+def scene_vortex(kind: str, cells: int, courant: float, per_cell: int, end: float, share: str = "default",
                  turning: bool = False) -> dict:
     """A vortex (``taylor_green`` at nu = 1e-6, or ``gresho``) handled as the shipped dam-break scene
     handles its particles (``scenes/dambreak.toml``): affine-FLIP, particle shifting of strength
     :data:`fempm.cases.vortices.SHIFTING`, and for Gresho the surface-aware volume correction (in a
     closed box: of both signs everywhere); Taylor-Green runs without a correction, as in its own study.
-    ``courant``: U dt / h (Gresho: max u_theta dt / h); ``noise_only``: the PIC share on the particles'
-    noise alone (:data:`fempm.cases.vortices.NOISE_ONLY`), ``turning`` with it shifts that add no angular
-    momentum (:data:`fempm.cases.vortices.NOISE_ONLY_TURNING`)."""
+    ``courant``: U dt / h (Gresho: max u_theta dt / h); ``share``: the PIC shares, a name of :data:`SHARES`;
+    ``turning``: shifts that add no angular momentum (``Scheme.shifting_keeps_angular_momentum``)."""
     dt = courant / cells
-    pic = vortices.NOISE_ONLY_TURNING if turning else vortices.NOISE_ONLY if noise_only else vortices.WHOLE_SHARE
+    pic = {**SHARES[share], **({"shifting_keeps_angular_momentum": True} if turning else {})}
     if kind == "taylor_green":
         run = vortices.taylor_green("affine-FLIP", cells, dt, 1e-6, end=end, per_cell=per_cell,
                                     shifting=vortices.SHIFTING, pic=pic)
     else:
         run = vortices.gresho("affine-FLIP", cells, dt, end=end, per_cell=per_cell, shifting=vortices.SHIFTING,
                               surface_aware=True, pic=pic)
-    return {**run, "kind": kind, "courant": courant, "per_cell": per_cell, "noise_only": noise_only, "turning": turning}
+    return {**run, "kind": kind, "courant": courant, "per_cell": per_cell, "share": share, "turning": turning}
 
 
 def studies(full: bool) -> dict:
@@ -101,10 +108,11 @@ def studies(full: bool) -> dict:
                            ((64, 0.4, 2), (128, 0.4, 2), (64, 0.2, 2), (64, 0.1, 2), (64, 0.4, 3), (128, 0.4, 3))]
         + [("gresho", n, c, k, 3.0 if full else 0.5) for n, c, k in
            ((32, 0.4, 2), (64, 0.4, 2), (64, 0.2, 2), (64, 0.4, 3)) + (((128, 0.4, 2),) if full else ())],
-        "noise_filter": [("gresho", 64, c, 2, 3.0 if full else 0.5, noise, turning) for c in (0.4, 0.2)
-                         for noise, turning in ((False, False), (True, False), (True, True))]
-        + [("gresho", 64, 0.4, 3, 3.0 if full else 0.5, True, True)]
-        + [("taylor_green", n, c, 2, 0.25, noise) for n, c in ((64, 0.4), (64, 0.1), (128, 0.4)) for noise in (False, True)],
+        "noise_filter": [("gresho", 64, c, 2, 3.0 if full else 0.5, share, turning) for c in (0.4, 0.2)
+                         for share, turning in (("default", False), ("whole", False), ("noise", False),
+                                                ("default", True))]
+        + [("taylor_green", n, c, 2, 0.25, share) for n, c in ((64, 0.4), (64, 0.1), (128, 0.4))
+           for share in ("default", "whole")],
         "fem_vortices": [("taylor_green", n, c / n, 0.25, 1e-6)
                          for n, c in ((64, 0.4),) + (((128, 0.4),) if full else ()) + ((64, 0.2), (64, 0.1))]
         + [("gresho", n, c / n, 3.0 if full else 0.5) for n, c in ((32, 0.4), (64, 0.4), (64, 0.2))],
@@ -186,8 +194,7 @@ def section(data: dict) -> str:
                                      "u_θ L2 error", "wall (s)", "outcome"], [
             [r["kind"].replace("_", "–").title(), r["cells"], f"{r['per_cell']} × {r['per_cell']}", f"{r['courant']:g}",
              f"{r['t']:g}",
-             ("noise only, 300/s" + (", shifts keeping L" if r.get("turning") else "")) if r["noise_only"]
-             else "whole, 100/s",
+             SHARE_NAMES[r["share"]] + (", shifts keeping L" if r.get("turning") else ""),
              f"{100 * r['ke']:+.2f} %" if r["kind"] == "gresho" else f"{r['numerical']:.2e}",
              f"{100 * r['L']:+.3f} % ({_largest(r)})" if r["kind"] == "gresho" else "—",
              pct(r["profile"]) if r["kind"] == "gresho" else "—", f"{r['wall']:.0f}", _outcome(r)]

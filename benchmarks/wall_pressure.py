@@ -62,8 +62,10 @@ STUDY = [
     ("adaptive_fast", "adaptive step, Courant 1", {"time.courant": 1.0}),
     ("pic", "the seed's FLIP with 10 % PIC per step", {"solver.transfer": "flip", "solver.pic_blend": 0.1,
                                                        "solver.pic_rate": 0.0, "solver.rest_pic_rate": 0.0}),
-    ("noise_only", "the PIC share on the particles' noise only, 300/s (solver.pic_noise_only)",
-     {"solver.pic_noise_only": True, "solver.pic_rate": 300.0}),
+    ("whole_share", "the whole PIC share alone, 100/s (the default before the share on the noise)",
+     {"solver.pic_rate": 100.0, "solver.noise_rate": 0.0}),
+    ("noise_only", "the share on the particles' noise alone, 300/s, no whole share",
+     {"solver.pic_rate": 0.0, "solver.noise_rate": 300.0}),
     ("crowding_only", "volume correction on crowding only", {"solver.surface_aware": False}),
     ("no_pspg", "no PSPG", {"solver.pspg": False}),
 ]

@@ -25,7 +25,7 @@
 # under FLIP increments without any PIC share), and the volume correction (method.md eq. 3).
 #
 # The transfers compared (`fempm.cases.vortices.VARIANTS`): the seed's FLIP with 10 % PIC
-# per step, and the default affine-FLIP with a PIC share of 100/s.
+# per step, and the default affine-FLIP with a PIC share of 30/s and one of 300/s on the noise alone.
 
 # %%
 import argparse

@@ -111,7 +111,9 @@ flag("--no-volume-correction", dest="solver.volume_correction", action="store_co
 flag("--no-pspg", dest="solver.pspg", action="store_const", const=False, help="PSPG off (the run then fails)")
 flag("--transfer", dest="solver.transfer", choices=TRANSFERS, help="particle-grid transfer (scene: affine-flip)")
 flag("--pic-rate", dest="solver.pic_rate", type=float, metavar="RATE",
-     help="PIC share per second, 1/s: a share RATE dt per step (scene: 100)")
+     help="PIC share per second, 1/s: a share RATE dt per step of the whole difference (scene: 30)")
+flag("--noise-rate", dest="solver.noise_rate", type=float, metavar="RATE",
+     help="then a share RATE dt per step of the particles' noise alone, 1/s (scene: 300; 0: none)")
 
 parser.set_defaults(**{"output.folder": "results/dambreak-demo"})
 args, rest = parser.parse_known_args()
@@ -155,7 +157,8 @@ recorder = simulation.recorder_for(scene, solver, {"scheme": "implicit"})
 # 2. **Newton** (`system.solve`): $R(\Delta u, p)$ and its Jacobian assembled at the particles,
 #    a MUMPS LU solve on the free dofs ($R$ is affine in the unknowns: one iteration).
 # 3. **G2P** (`update`): particle velocity and acceleration by FLIP increments blended with PIC
-#    at a share of 100/s (`pic_rate` $\Delta t$ per step), their affine parts $C_p$ by APIC
+#    at a share of 30/s (`pic_rate` $\Delta t$ per step), then a share of 300/s of the particles'
+#    noise alone (`noise_rate`, `fempm.transfer.NoiseFilter`), their affine parts $C_p$ by APIC
 #    (Jiang et al. 2015), `fempm.transfer.update_state`;
 #    $x_p \leftarrow x_p + \Delta u(x_p)$, the particle pressure; then the safeguards, and the
 #    particles are relocated to their cells and ranks.

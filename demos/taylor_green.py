@@ -35,8 +35,9 @@
 #   damps a mode at a rate $\sim 0.1\,(kh)^2/\Delta t$: it *grows* as the step falls.
 # * **affine-FLIP**, the default: the particles carry APIC's affine parts (Jiang et al. 2015),
 #   the values move by FLIP increments blended with PIC at a share $r\,\Delta t$ per step
-#   ($r$ = `pic_rate` = 100/s). Its damping rate is $r$ times the share of a mode one APIC
-#   transfer takes: independent of $\Delta t$, and falling fast with $h$.
+#   ($r$ = `pic_rate` = 30/s), then a share of 300/s of the particles' noise alone (`noise_rate`).
+#   The whole share's damping rate is $r$ times the share of a mode one APIC transfer takes:
+#   independent of $\Delta t$, and falling fast with $h$; the noise's leaves the resolved flow.
 #
 # The run lasts $t$ = 0.25 (U = 1, L = 1): at 64² and longer times particles gather along the
 # box's diagonals and open holes near the hyperbolic points whatever the transfer, which is a

@@ -142,7 +142,7 @@ class ImplicitSolver(Stepper):
                                            scheme.shifting_keeps_angular_momentum)
                           if scheme.shifting > 0 else None)
         self._values, self._divergence = np.empty((0, self._g2p.space.bs)), np.empty(0)  # G2P's (_particle_room)
-        self._noise = (transfer.NoiseFilter(basis) if scheme.pic_noise_only and scheme.transfer in transfer.NOISE_FILTERED
+        self._noise = (transfer.NoiseFilter(basis) if scheme.noise_rate > 0 and scheme.transfer in transfer.NOISE_FILTERED
                        else None)
 
     # -- one step (Stepper.step chooses dt, retries, moves the clock) ---------------------------
@@ -265,7 +265,8 @@ class ImplicitSolver(Stepper):
         values, divergence = self._particle_room(len(p), g.space.bs)
         share = transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt)
         rest = transfer.rest_share(sc.transfer, sc.rest_pic_rate, s.dt, self.physics.gravity, self.grid.h)
-        transfer.update_state(g, p, sc.transfer, share, values, divergence, rest, self._noise)
+        noise = None if self._noise is None else (self._noise, min(1.0, sc.noise_rate * s.dt))
+        transfer.update_state(g, p, sc.transfer, share, values, divergence, rest, noise)
         x = p.x
         _move(values, g.space.field_offset("du"), g.space.field_offset("p"), x, p["pressure"])
         p.fields["x"] = s.walls.keep_inside(x)

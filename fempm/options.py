@@ -124,12 +124,14 @@ class Scheme:
             damps per unit time as 1/dt, more as the step falls.
         pic_rate: PIC share per unit time (1/s) of ``flip`` and ``affine-flip``: the share per
             step is ``min(1, pic_blend + pic_rate dt)``, a damping that does not grow as dt falls
-            and that the affine parts make vanish fast as h falls. Without any PIC share, FLIP
+            and that the affine parts make vanish fast as h falls. It takes the particle's whole
+            difference from the grid, the resolved flow's share of it too. Without any PIC share, FLIP
             increments let a column at rest grow a grid-scale velocity mode; on Q1 a share of
             100/s does not hold it either (``apic`` does: ``tests/test_implicit.py``).
-        pic_noise_only: the flowing PIC share of ``flip`` and ``affine-flip`` damps only the particles'
-            noise, their difference from the grid less its smooth part (:class:`fempm.transfer.NoiseFilter`);
-            False: the whole difference (the seed's PIC), which also damps the resolved flow.
+        noise_rate: the share per unit time (1/s) of ``affine-flip`` that damps only the particles'
+            noise, their difference from the grid less its smooth part, after the whole share
+            (:class:`fempm.transfer.NoiseFilter`: ``min(1, noise_rate dt)`` per step; a particle alone in
+            its functions' support, whose difference is its own smoothing, is damped whole). 0: none.
         rest_pic_rate: PIC share per unit time (1/s) of water at rest under gravity, for ``flip`` and
             ``affine-flip``: a particle where the grid's new velocity is below
             ``transfer.REST_SPEED sqrt(|g| h)`` takes a share rising linearly as its speed falls, from
@@ -162,8 +164,8 @@ class Scheme:
     pspg: bool = True
     transfer: str = "affine-flip"
     pic_blend: float = 0.0
-    pic_rate: float = 100.0
-    pic_noise_only: bool = False
+    pic_rate: float = 30.0
+    noise_rate: float = 300.0
     rest_pic_rate: float = 300.0
     forms: str | Path = "incompressible"
     initial_acceleration: str = "solved"
@@ -198,6 +200,8 @@ class Scheme:
             raise InputError(f"pressure_quadrature must be one of {PRESSURE_QUADRATURES}, got {self.pressure_quadrature!r}")
         if not (np.isfinite(self.pic_rate) and self.pic_rate >= 0):
             raise InputError(f"pic_rate must be a finite number >= 0 (1/s), got {self.pic_rate}")
+        if not (np.isfinite(self.noise_rate) and self.noise_rate >= 0):
+            raise InputError(f"noise_rate must be a finite number >= 0 (1/s), got {self.noise_rate}")
         if not (np.isfinite(self.rest_pic_rate) and self.rest_pic_rate >= 0):
             raise InputError(f"rest_pic_rate must be a finite number >= 0 (1/s), got {self.rest_pic_rate}")
         if self.initial_acceleration not in INITIAL_ACCELERATIONS:

@@ -181,7 +181,7 @@ class Solver:
     shifting_keeps_angular_momentum: bool = key(boolean, Scheme.shifting_keeps_angular_momentum)
     pic_blend: float = key(fraction, Scheme.pic_blend)
     pic_rate: float = key(non_negative, Scheme.pic_rate, unit="1/s")
-    pic_noise_only: bool = key(boolean, Scheme.pic_noise_only)
+    noise_rate: float = key(non_negative, Scheme.noise_rate, unit="1/s")
     rest_pic_rate: float = key(non_negative, Scheme.rest_pic_rate, unit="1/s")
     newmark_beta: float = key(in_range(0, 0.5), Scheme.beta)
     newmark_gamma: float = key(in_range(0, 1), Scheme.gamma)

@@ -492,7 +492,8 @@ _G2P_RULES = ("apic", "tpic")
 
 
 def update_state(g2p: GridFunction, particles, kind: str, share: float, values: np.ndarray,
-                 divergence: np.ndarray, rest: tuple[float, float] = (0.0, 0.0), noise: NoiseFilter | None = None):
+                 divergence: np.ndarray, rest: tuple[float, float] = (0.0, 0.0),
+                 noise: tuple[NoiseFilter, float] | None = None):
     """G2P of velocity and acceleration from ``g2p`` (fields ``dv``, ``da``: the step's changes;
     ``v``, ``a``: the new values), in one pass over the particles.
 
@@ -501,16 +502,15 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
     parts of ``v_{n+1}`` and ``a_{n+1}``, taken whole (``B_p D_p^-1`` for ``apic`` and
     ``affine-flip``, the grid gradient for ``tpic``). The acceleration, Newmark's state, goes
     as the velocity, so that the next step starts from one transferred pair. With a ``noise``
-    filter (``flip`` and ``affine-flip``) the flowing ``share`` takes only the particles' noise
-    (:class:`NoiseFilter`), after still water's share, rising from 0 to ``rest[0]``, has taken the whole
-    difference.
+    filter and its share (``affine-flip``), that share of the particles' noise is taken after
+    (:class:`NoiseFilter`).
 
     For the rest of a caller's G2P, into its buffers (reused from step to step): ``values``
     ``(n, bs)``, all of ``g2p`` at the particles, and ``divergence`` ``(n,)``, ``div v_{n+1}`` there.
     """
     if noise is not None and kind in NOISE_FILTERED:
-        update_state(g2p, particles, kind, 0.0, values, divergence, rest)
-        noise.damp(g2p.space, particles, values, share)
+        update_state(g2p, particles, kind, share, values, divergence, rest)
+        noise[0].damp(g2p.space, particles, values, noise[1])
         return
     space = g2p.space
     phi, lfun = space.tabulate_particles(particles, order=1, exact=False)
@@ -525,8 +525,8 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
                values, divergence)
 
 
-#: the transfers whose PIC share a :class:`NoiseFilter` can restrict to the particles' noise
-NOISE_FILTERED = ("flip", "affine-flip")
+#: the transfers whose particles a :class:`NoiseFilter` damps (``flip`` stays the seed's FLIP/PIC blend)
+NOISE_FILTERED = ("affine-flip",)
 
 
 class NoiseFilter:
@@ -537,9 +537,14 @@ class NoiseFilter:
     particle's own history) and particle-to-particle noise in the null space of P2G, which FLIP
     never damps. The smooth part is ``S d``, the difference taken to the grid and back
     (mass-weighted P2G, G2P); the share damps ``d - S d`` alone:
-    ``v_p <- v_p - k (d_p - (S d)_p)``. Linear momentum is kept (``sum_p m_p (S d)_p = sum_p m_p d_p``).
-    Like XPIC (Hammerquist & Nairn 2017), it filters the null-space noise without PIC's smoothing of
-    the resolved flow, which a whole share damps at its rate however fine the step.
+    ``v_p <- v_p - k (d_p - (S d)_p)``. Like XPIC (Hammerquist & Nairn 2017), it filters the
+    null-space noise without PIC's smoothing of the resolved flow.
+
+    A particle alone in its functions' support is its own smoothing (``S d = d``), so its noise
+    would never be damped: where the particle's own weight in its smoothing,
+    ``o_p = sum_i N_i(x_p)^2 m_p / m_i``, exceeds :data:`LONE_WEIGHT`, a share of its smooth part is
+    taken too, ``k l_p (S d)_p`` with ``l_p`` ramped from 0 there to 1 at ``o_p = 1`` (a particle with
+    no neighbour, whose whole difference the share then takes, as PIC does).
     """
 
     def __init__(self, basis):
@@ -547,8 +552,9 @@ class NoiseFilter:
         self._difference = np.empty((0, 4))
 
     def damp(self, space: Space, particles, values: np.ndarray, share: float):
-        """Take ``share`` of the noise off the particles' velocity and acceleration; ``values``: the grid
-        fields of ``space`` (``v``, ``a``) at the particles (:func:`update_state`'s buffer)."""
+        """Take ``share`` of the noise off the particles' velocity and acceleration (of a lone particle's
+        whole difference); ``values``: the grid fields of ``space`` (``v``, ``a``) at the particles
+        (:func:`update_state`'s buffer)."""
         if share == 0.0:
             return
         phi, lfun = space.tabulate_particles(particles, order=0, exact=False)
@@ -561,7 +567,7 @@ class NoiseFilter:
         grid.scatter_reverse_add()
         grid.scatter_forward()
         _per_unit_mass(grid.values)
-        _take_noise(phi, lfun, grid.values, self._difference, float(share), velocity, acceleration)
+        _take_noise(phi, lfun, particles["mass"], grid.values, self._difference, float(share), velocity, acceleration)
 
 
 @numba.njit(cache=True)
@@ -589,15 +595,26 @@ def _per_unit_mass(grid):
             grid[f, c] = grid[f, c] / m if m > 0 else 0.0
 
 
+#: a particle's own weight in its difference's smoothing above which it counts as (partly) alone (NoiseFilter)
+LONE_WEIGHT = 0.5
+
+
 @numba.njit(cache=True)
-def _take_noise(phi, lfun, grid, difference, share, velocity, acceleration):
-    """``state_p -= share (d_p - (S d)_p)``, ``S d`` the grid's difference at the particle."""
+def _take_noise(phi, lfun, mass, grid, difference, share, velocity, acceleration):
+    """``state_p -= share (d_p - (1 - l_p) (S d)_p)``, ``S d`` the grid's difference at the particle (``grid``: the
+    nodal mass, then the difference per unit mass), ``l_p`` its loneness (:class:`NoiseFilter`)."""
     smooth = np.empty((1, grid.shape[1]))
     for p in range(lfun.shape[0]):
         particle_jets(phi[p], lfun[p], grid, smooth)
+        own = 0.0
+        for l in range(lfun.shape[1]):
+            w = phi[p, 0, l]
+            if w != 0.0:
+                own += w * w * mass[p] / grid[lfun[p, l], 0]
+        kept = 1.0 - min(max((own - LONE_WEIGHT) / (1.0 - LONE_WEIGHT), 0.0), 1.0)
         for c in range(2):
-            velocity[p, c] -= share * (difference[p, c] - smooth[0, 1 + c])
-            acceleration[p, c] -= share * (difference[p, 2 + c] - smooth[0, 3 + c])
+            velocity[p, c] -= share * (difference[p, c] - kept * smooth[0, 1 + c])
+            acceleration[p, c] -= share * (difference[p, 2 + c] - kept * smooth[0, 3 + c])
 
 
 @numba.njit(cache=True, inline="always")

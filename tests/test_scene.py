@@ -97,16 +97,16 @@ BAD_SCENES = [
     ("boolean as a string", _edit("pspg = true", 'pspg = "yes"'), [], r"solver.pspg: must be true or false, got 'yes'"),
     ("output interval shorter than dt", _edit("particles_interval = 0.05", "particles_interval = 0.0001"), [],
      r"output.particles_interval = 0.0001 is shorter than time.dt = 0.001: must be >= dt"),
-    ("forms by path", _edit('pic_rate = 100.0', 'pic_rate = 100.0\nforms = "nowhere.py"'), [],
+    ("forms by path", _edit('pic_rate = 30.0', 'pic_rate = 30.0\nforms = "nowhere.py"'), [],
      r"solver.forms: must be the bare name of a shipped forms file \(e.g. 'incompressible'\), got 'nowhere.py': "
      r"a forms file is Python code that runs, so a scene cannot name one by path; give your own file on the "
      r"command line with --forms PATH"),
-    ("forms not shipped", _edit('pic_rate = 100.0', 'pic_rate = 100.0\nforms = "nowhere"'), [],
+    ("forms not shipped", _edit('pic_rate = 30.0', 'pic_rate = 30.0\nforms = "nowhere"'), [],
      r"solver.forms = 'nowhere': no shipped forms of that name; shipped: gauss_pressure, incompressible, "
      r"weakly_compressible"),
-    ("unknown pressure quadrature", _edit('pic_rate = 100.0', 'pic_rate = 100.0\npressure_quadrature = "gaus"'), [],
+    ("unknown pressure quadrature", _edit('pic_rate = 30.0', 'pic_rate = 30.0\npressure_quadrature = "gaus"'), [],
      r"solver.pressure_quadrature: must be one of 'particles', 'gauss', got 'gaus'"),
-    ("Gauss-point forms without their points", _edit('pic_rate = 100.0', 'pic_rate = 100.0\nforms = "gauss_pressure"'),
+    ("Gauss-point forms without their points", _edit('pic_rate = 30.0', 'pic_rate = 30.0\nforms = "gauss_pressure"'),
      [], r"solver.forms = 'gauss_pressure' integrates the pressure's terms at Gauss points: set "
      r"solver.pressure_quadrature = 'gauss'"),
     ("no fluid", re.sub(r"\[\[bodies\]\].*?particles_per_cell = 4[^\n]*\n", "", DAMBREAK, flags=re.S), [],
@@ -116,23 +116,23 @@ BAD_SCENES = [
     ("obstacle cell outside the grid", DAMBREAK + '\n[[obstacles]]\nshape = "cells"\ncells = [[40, 0]]\n', [],
      r"obstacles\[0\].cells: cell \[40, 0\] is outside the grid of 40 x 40 cells"),
     ("not TOML", "domain = [", [], r"not valid TOML: "),
-    ("PETSc option misspelt", _edit("pic_rate = 100.0", "pic_rate = 100.0\npetsc = { ksp_rtoll = 1e-8 }"), [],
+    ("PETSc option misspelt", _edit("pic_rate = 30.0", "pic_rate = 30.0\npetsc = { ksp_rtoll = 1e-8 }"), [],
      r"solver.petsc.ksp_rtoll: PETSc did not use this option \(-fempm_ksp_rtoll\) .* did you mean ksp_rtol"),
-    ("PETSc option with a wrong value", _edit("pic_rate = 100.0", 'pic_rate = 100.0\npetsc = { pc_type = "luu" }'), [],
+    ("PETSc option with a wrong value", _edit("pic_rate = 30.0", 'pic_rate = 30.0\npetsc = { pc_type = "luu" }'), [],
      r"solver.petsc.pc_type = 'luu': PETSc rejects it \(unknown type\); allowed: .*\bgamg\b.*\blu\b"),
     ("negative end time on the command line", None, ["--end-time", "-1"],
      r"argument --end-time: must be a number of seconds > 0, got '-1'"),
     ("unknown flag", None, ["--bogus"], r"unrecognized arguments: --bogus"),
     # issue 13: no side effects, sizes before allocation, every accepted value used or refused
-    ("forms escaping forms/", _edit('pic_rate = 100.0', 'pic_rate = 100.0\nforms = "../../tmp/evil"'), [],
+    ("forms escaping forms/", _edit('pic_rate = 30.0', 'pic_rate = 30.0\nforms = "../../tmp/evil"'), [],
      r"solver.forms: must be the bare name of a shipped forms file .*got '../../tmp/evil'"),
     ("forms not a .py file", None, ["--forms", "x.txt"], r"--forms = 'x.txt': not a .py file"),
-    ("PETSc viewer to a file", _edit("pic_rate = 100.0", 'pic_rate = 100.0\npetsc = { ksp_view_mat = "binary:A.dat" }'),
+    ("PETSc viewer to a file", _edit("pic_rate = 30.0", 'pic_rate = 30.0\npetsc = { ksp_view_mat = "binary:A.dat" }'),
      [], r"solver.petsc.ksp_view_mat = 'binary:A.dat': it writes a file \(a binary viewer\); PETSc options in a "
          r"scene may only print to the terminal"),
-    ("PETSc monitor to a file", _edit("pic_rate = 100.0", 'pic_rate = 100.0\npetsc = { ksp_monitor = "ascii:log.txt" }'),
+    ("PETSc monitor to a file", _edit("pic_rate = 30.0", 'pic_rate = 30.0\npetsc = { ksp_monitor = "ascii:log.txt" }'),
      [], r"solver.petsc.ksp_monitor = 'ascii:log.txt': it writes the file 'log.txt'"),
-    ("PETSc drawing", _edit("pic_rate = 100.0", 'pic_rate = 100.0\npetsc = { ksp_monitor = "draw" }'),
+    ("PETSc drawing", _edit("pic_rate = 30.0", 'pic_rate = 30.0\npetsc = { ksp_monitor = "draw" }'),
      [], r"solver.petsc.ksp_monitor = 'draw': it draws in a window"),
     ("grid too large for the memory", _edit("cells = [40, 40]", "cells = [20000, 20000]"), [],
      r"domain.cells = \[20000, 20000\]: the run would need about 1.\d+e\+03 GB of memory \(4e\+08 cells, .*\), more "
@@ -166,15 +166,15 @@ BAD_SCENES = [
      r"0.002 \(1 or 2 steps\)"),
     ("checkpoint interval between whole steps", _edit("checkpoint_interval = 0.1", "checkpoint_interval = 0.1004"), [],
      r"output.checkpoint_interval = 0.1004 is not a whole number of steps .*; take 0.1 or 0.101"),
-    ("Newmark beta out of range", _edit("pic_rate = 100.0", "pic_rate = 100.0\nnewmark_beta = 0.7"), [],
+    ("Newmark beta out of range", _edit("pic_rate = 30.0", "pic_rate = 30.0\nnewmark_beta = 0.7"), [],
      r"solver.newmark_beta: must be a number in \(0, 0.5\], got 0.7"),
-    ("Newmark gamma out of range", _edit("pic_rate = 100.0", "pic_rate = 100.0\nnewmark_gamma = 0"), [],
+    ("Newmark gamma out of range", _edit("pic_rate = 30.0", "pic_rate = 30.0\nnewmark_gamma = 0"), [],
      r"solver.newmark_gamma: must be a number in \(0, 1\], got 0"),
     ("transfer unknown", _edit('transfer = "affine-flip"', 'transfer = "aflip"'), [],
      r"solver.transfer: must be one of 'flip', 'apic', 'tpic', 'affine-flip', got 'aflip'"),
-    ("PIC rate negative", _edit("pic_rate = 100.0", "pic_rate = -1.0"), [],
+    ("PIC rate negative", _edit("pic_rate = 30.0", "pic_rate = -1.0"), [],
      r"solver.pic_rate: must be a number >= 0, got -1.0 \(1/s\)"),
-    ("pressure limit not positive", _edit("pic_rate = 100.0", "pic_rate = 100.0\npressure_limit = -1.0"), [],
+    ("pressure limit not positive", _edit("pic_rate = 30.0", "pic_rate = 30.0\npressure_limit = -1.0"), [],
      r"solver.pressure_limit: must be a number > 0, got -1.0 \(Pa\)"),
     ("symmetric bow-tie",
      _edit(COLUMN, 'shape = "polygon"\nvertices = [[0.0, 0.0], [0.2, 0.2], [0.2, 0.0], [0.0, 0.2]]'), [],
@@ -272,7 +272,7 @@ def test_dambreak_scene_is_the_seeds_tank_and_water(comm):
     physics, scheme = solver.physics, solver.scheme
     assert (scheme.dt, scheme.courant, physics.viscosity, scheme.alpha, scheme.pspg, scheme.pic_blend, physics.gravity) == \
         (1e-2, 0.8, 1e-3, 0.1, True, 0.0, (0.0, -9.81))
-    assert (scheme.transfer, scheme.pic_rate, scheme.surface_aware) == ("affine-flip", 100.0, True)
+    assert (scheme.transfer, scheme.pic_rate, scheme.noise_rate, scheme.surface_aware) == ("affine-flip", 30.0, 300.0, True)
     from fempm.cases import vortices  # the verification's vortices take the scene's shifting
 
     assert scheme.shifting == vortices.SHIFTING == 4.0
@@ -323,8 +323,8 @@ def test_check_runs_no_forms_named_by_a_scene_and_writes_nothing(tmp_path, capsy
     file is refused before PETSc sees it: ``fempm check`` leaves the disk as it was."""
     evil = tmp_path / "evil.py"
     evil.write_text(f"open({str(tmp_path / 'ran')!r}, 'w').write('x')\ndef residual(s):\n    return None\n")
-    scenes = {"forms.toml": _edit("pic_rate = 100.0", f'pic_rate = 100.0\nforms = "{evil}"'),
-              "viewer.toml": _edit("pic_rate = 100.0", f'pic_rate = 100.0\npetsc = {{ ksp_view_mat = '
+    scenes = {"forms.toml": _edit("pic_rate = 30.0", f'pic_rate = 30.0\nforms = "{evil}"'),
+              "viewer.toml": _edit("pic_rate = 30.0", f'pic_rate = 30.0\npetsc = {{ ksp_view_mat = '
                                                       f'"binary:{tmp_path / "A.dat"}", ksp_monitor = "" }}')}
     for name, text in scenes.items():
         (tmp_path / name).write_text(text)
@@ -374,7 +374,7 @@ def test_the_pressure_limit_follows_the_scene(comm):
     assert limit(drifting) == pytest.approx(20 * 1000.0 * 100.0**2, rel=1e-12)
     light = _edit("density = 1000.0 ", "density = 1.2 ")
     assert limit(light) == pytest.approx(20 * 1.2 * 9.81 * 0.584, rel=1e-12)
-    assert limit(_edit("pic_rate = 100.0", "pic_rate = 100.0\npressure_limit = 5.0e5")) == 5.0e5
+    assert limit(_edit("pic_rate = 30.0", "pic_rate = 30.0\npressure_limit = 5.0e5")) == 5.0e5
 
 
 def test_a_shorter_end_time_leaves_out_later_snapshots_with_a_note():

@@ -319,7 +319,8 @@ def test_the_particle_state_of_a_rank_without_particles(comm, kind):
                                                                                        "count": 1})))
     assert not p2g.values.any()
     g2p = fempm.GridFunction(fempm.Space(basis, {"dv": 2, "da": 2, "v": 2, "a": 2}))
-    transfer.update_state(g2p, particles, kind, 0.1, np.empty((0, 8)), np.empty(0), noise=transfer.NoiseFilter(basis))
+    transfer.update_state(g2p, particles, kind, 0.1, np.empty((0, 8)), np.empty(0),
+                          noise=(transfer.NoiseFilter(basis), 0.3))
     assert particles["velocity"].shape == (0, 2)
 
 
@@ -352,8 +353,8 @@ def test_the_noise_filter_damps_the_particles_noise_and_keeps_the_resolved_flow(
     for noise in (None, transfer.NoiseFilter):
         particles, g2p, resolved = _lattice_with_noise(comm, 0.5)
         momentum = comm.allreduce(particles["mass"] @ particles["velocity"])
-        transfer.update_state(g2p, particles, "affine-flip", 1.0, np.empty((len(particles), 8)),
-                              np.empty(len(particles)), noise=noise and noise(g2p.space.basis))
+        transfer.update_state(g2p, particles, "affine-flip", 0.0 if noise else 1.0, np.empty((len(particles), 8)),
+                              np.empty(len(particles)), noise=noise and (noise(g2p.space.basis), 1.0))
         filtered[noise] = _rms(comm, particles, particles["velocity"] - resolved) / _rms(comm, particles, resolved)
         if noise:
             np.testing.assert_allclose(comm.allreduce(particles["mass"] @ particles["velocity"]), momentum,
@@ -361,3 +362,19 @@ def test_the_noise_filter_damps_the_particles_noise_and_keeps_the_resolved_flow(
             np.testing.assert_array_equal(particles["acceleration"], particles["velocity"])
     assert filtered[None] == pytest.approx(1.0, abs=1e-12)  # the whole share: the wave is gone
     assert filtered[transfer.NoiseFilter] < 0.05  # measured 0.048 (the wave smoothed by h²/4 of its Laplacian): the checkerboard, 0.71, is gone
+
+
+@pytest.mark.parametrize("share", [1.0, 0.3])
+def test_the_noise_filter_damps_a_lone_particle_whole(comm, share):
+    """A particle alone in its functions' support is its own smoothing, so its difference from the grid
+    would count as resolved: the filter takes its whole difference instead, as PIC does."""
+    grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 1.0), 0.1)
+    particles = fempm.Particles(grid)
+    particles.add_points(np.array([[0.43, 0.57]]), 0.0025, density=1000.0, ids=np.arange(1))
+    transfer.add_affine_fields(particles, "affine-flip")
+    particles["velocity"][:] = particles["acceleration"][:] = [[0.7, -1.3]]
+    g2p = fempm.GridFunction(fempm.Space(fempm.BSpline2(grid), {"dv": 2, "da": 2, "v": 2, "a": 2}))
+    transfer.update_state(g2p, particles, "affine-flip", 0.0, np.empty((1, 8)), np.empty(1),
+                          noise=(transfer.NoiseFilter(g2p.space.basis), share))
+    # the grid at rest: the share of the difference is gone, whatever the weights (an exact product)
+    np.testing.assert_allclose(particles["velocity"], [[0.7 * (1 - share), -1.3 * (1 - share)]], rtol=1e-14)

@@ -88,8 +88,8 @@ def cavity_solver(method: str, cells: int, basis: str, dt: float, per_cell: int 
     """The cavity at rest: the FEM-only reference, or the MPM with ``per_cell`` x ``per_cell``
     particles in every cell (:func:`fempm.verification.filled_solver`).
 
-    The MPM's transfer is FLIP with a PIC share ``pic`` per step, the seed's: the default's PIC
-    rate (100/s) is a share of 1 per step at this case's U dt / h = 0.5 (U = L = 1), i.e. APIC,
+    The MPM's transfer is FLIP with a PIC share ``pic`` per step, the seed's: a PIC rate of 100/s (the
+    default's until its share on the noise) is a share of 1 per step at this case's U dt / h = 0.5 (U = L = 1), i.e. APIC,
     under which the particles opened a hole (0.17 % of the cells empty at 24 cells) and crowded
     a corner."""
     grid = cavity_grid(cells, comm)

@@ -42,20 +42,21 @@ from fempm.particles import Particles, Rectangle
 from fempm.quadrature import GaussForm
 from fempm.verification import advance
 
-__all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "VARIANTS", "WHOLE_SHARE", "angular_momentum",
+__all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "TURNING", "VARIANTS", "WHOLE_SHARE", "angular_momentum",
            "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "largest_change",
            "taylor_green"]
 
 RHO = 1000.0  #: kg/m^3
 #: the transfers compared: the seed's FLIP with 10 % PIC per step and the default affine-FLIP
 VARIANTS = {"FLIP/PIC": {"transfer": "flip", "pic_blend": 0.1, "pic_rate": 0.0, "rest_pic_rate": 0.0}, "affine-FLIP": {}}
-#: the whole PIC share at 100/s (the default), named so that studies beside the options keep their meaning
-WHOLE_SHARE = {"pic_noise_only": False, "pic_rate": 100.0}
-#: the PIC share restricted to the particles' noise (:class:`fempm.transfer.NoiseFilter`), at 300/s: an option
-#: the studies run beside the default (``pic``)
-NOISE_ONLY = {"pic_noise_only": True, "pic_rate": 300.0}
-#: with it, shifts that add no angular momentum (``Scheme.shifting_keeps_angular_momentum``)
-NOISE_ONLY_TURNING = {**NOISE_ONLY, "shifting_keeps_angular_momentum": True}
+#: the whole PIC share at 100/s alone, the default until the share on the noise joined it (studies' ``pic``)
+WHOLE_SHARE = {"pic_rate": 100.0, "noise_rate": 0.0}
+#: the share on the particles' noise alone (:class:`fempm.transfer.NoiseFilter`) at 300/s, no whole share
+NOISE_ONLY = {"pic_rate": 0.0, "noise_rate": 300.0}
+#: shifts that add no angular momentum (``Scheme.shifting_keeps_angular_momentum``), with the default shares
+TURNING = {"shifting_keeps_angular_momentum": True}
+#: the same with the share on the noise alone
+NOISE_ONLY_TURNING = {**NOISE_ONLY, **TURNING}
 #: the shipped dam break's particle shifting (``scenes/dambreak.toml``, ``solver.shifting``; fempm.shifting)
 SHIFTING = 4.0
 CENTRE = np.array([0.5, 0.5])
