@@ -537,14 +537,16 @@ class NoiseFilter:
     particle's own history) and particle-to-particle noise in the null space of P2G, which FLIP
     never damps. The smooth part is ``S d``, the difference taken to the grid and back
     (mass-weighted P2G, G2P); the share damps ``d - S d`` alone:
-    ``v_p <- v_p - k (d_p - (S d)_p)``. Like XPIC (Hammerquist & Nairn 2017), it filters the
-    null-space noise without PIC's smoothing of the resolved flow.
+    ``v_p <- v_p - k (d_p - (S d)_p)``, which keeps linear momentum (``sum_p m_p (S d)_p = sum_p m_p d_p``).
+    Like XPIC (Hammerquist & Nairn 2017), it filters the null-space noise without PIC's smoothing of
+    the resolved flow.
 
     A particle alone in its functions' support is its own smoothing (``S d = d``), so its noise
     would never be damped: where the particle's own weight in its smoothing,
     ``o_p = sum_i N_i(x_p)^2 m_p / m_i``, exceeds :data:`LONE_WEIGHT`, a share of its smooth part is
     taken too, ``k l_p (S d)_p`` with ``l_p`` ramped from 0 there to 1 at ``o_p = 1`` (a particle with
-    no neighbour, whose whole difference the share then takes, as PIC does).
+    no neighbour, whose whole difference the share then takes, as PIC does, and with it momentum towards
+    the grid's).
     """
 
     def __init__(self, basis):
