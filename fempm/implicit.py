@@ -42,15 +42,16 @@ WALL_RESOLVES = 2
 
 @numba.njit(cache=True)
 def _grid_state(p2g, m, mv, ma, count, rho, reference, min_support, min_pressure, min_count, velocity,
-                acceleration, keep, pressure):
+                acceleration, held, keep, pressure):
     """:meth:`ImplicitSolver.project`'s grid fields from the P2G sums ``p2g`` (columns ``m``, ``mv``,
     ``ma``, ``count``) and the smoothed density ``rho``, function by function: ``v = (m v) / m`` and
     ``a = (m a) / m`` where the material's fraction ``rho / reference`` reaches ``min_support`` (else
-    0); for the owned functions (the rows of ``keep``) every dof kept there, the pressure only where
-    the fraction reaches ``min_pressure`` and ``min_count`` particles or more share the support."""
+    0, and ``held`` 1); for the owned functions (the rows of ``keep``) every dof kept there, the pressure
+    only where the fraction reaches ``min_pressure`` and ``min_count`` particles or more share the support."""
     for f in range(p2g.shape[0]):
         mass, fraction = p2g[f, m], rho[f] / reference
         moving = mass > 0 and fraction >= min_support
+        held[f] = 0.0 if moving else 1.0
         for c in range(2):
             velocity[f, c] = p2g[f, mv + c] / mass if moving else 0.0
             acceleration[f, c] = p2g[f, ma + c] / mass if moving else 0.0
@@ -60,11 +61,12 @@ def _grid_state(p2g, m, mv, ma, count, rho, reference, min_support, min_pressure
 
 
 @numba.njit(cache=True)
-def _g2p_fields(U, u, p, v_n, a_n, v_new, a_new, out, du, dv, da, v, a, pressure):
+def _g2p_fields(U, u, p, v_n, a_n, v_new, a_new, held, out, du, dv, da, v, a, pressure, held_at):
     """:meth:`ImplicitSolver.update`'s grid fields into ``out`` (at the components from ``du``, ``dv``,
-    ``da``, ``v``, ``a``, ``pressure``): the solved ``du`` and ``p`` (of ``U``, from ``u`` and ``p``), the
-    changes ``v_{n+1} - v_n`` and ``a_{n+1} - a_n``, and the new values."""
+    ``da``, ``v``, ``a``, ``pressure``, ``held_at``): the solved ``du`` and ``p`` (of ``U``, from ``u`` and
+    ``p``), the changes ``v_{n+1} - v_n`` and ``a_{n+1} - a_n``, the new values, and ``held``."""
     for f in range(out.shape[0]):
+        out[f, held_at] = held[f]
         for c in range(2):
             out[f, du + c] = U[f, u + c]
             out[f, dv + c] = v_new[f, c] - v_n[f, c]
@@ -131,7 +133,8 @@ class ImplicitSolver(Stepper):
                              f"pressure_quadrature is 'particles': set it to 'gauss'")
         self._jet_order = max(self.forms.residual.order, self.forms.jacobian.order)  # the jets the forms read
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
-        self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1}), "g2p")
+        self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1, "held": 1}), "g2p")
+        self._held = np.zeros(len(self._g2p.values))  # 1 on the functions a step held at rest (project)
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
         self._deep_water = DeepWater(s.scalar_space)
         self.check_pressure = self._pressure_check()
@@ -201,7 +204,9 @@ class ImplicitSolver(Stepper):
             _, a_new = self.system.end_state()
             g.values[:] = 0.0
             g.field("a")[:] = a_new
+            g.field("held")[:, 0] = self._held
             jets = transfer.grid_jets_to_particles(g, p, order=1)
+            transfer.restore_held(g.space, jets[:, 0, :])  # over the functions the step moved
             p["acceleration"][:] = jets[:, 0, g.space.field_slice("a")]
             if self.scheme.transfer != "flip":
                 _, affine = transfer.affine_grid_to_particles(g, p, transfer.affine_rule(self.scheme.transfer), jets,
@@ -240,7 +245,7 @@ class ImplicitSolver(Stepper):
         _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
                     self._reference_density, c.min_support_fraction, c.min_pressure_support,
                     -(-self.basis.functions_per_cell // 3), s.fields["grid_velocity"].values,
-                    s.fields["grid_acceleration"].values, keep, s.space.field_offset("p"))
+                    s.fields["grid_acceleration"].values, self._held, keep, s.space.field_offset("p"))
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs
         # for a solve again with fewer held walls (solve): the material's dofs, v_n and a_n before the walls'
         self._material = keep.ravel().copy()
@@ -259,8 +264,8 @@ class ImplicitSolver(Stepper):
         p, s, g = self.particles, self.system, self._g2p
         v_new, a_new = s.end_state()
         _g2p_fields(s.U.values, s.space.field_offset("u"), s.space.field_offset("p"), s.fields["grid_velocity"].values,
-                    s.fields["grid_acceleration"].values, v_new, a_new, g.values,
-                    *(g.space.field_offset(name) for name in ("du", "dv", "da", "v", "a", "p")))
+                    s.fields["grid_acceleration"].values, v_new, a_new, self._held, g.values,
+                    *(g.space.field_offset(name) for name in ("du", "dv", "da", "v", "a", "p", "held")))
         sc = self.scheme
         values, divergence = self._particle_room(len(p), g.space.bs)
         share = transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt)

@@ -507,6 +507,10 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
 
     For the rest of a caller's G2P, into its buffers (reused from step to step): ``values``
     ``(n, bs)``, all of ``g2p`` at the particles, and ``divergence`` ``(n,)``, ``div v_{n+1}`` there.
+
+    With a field ``held`` in ``g2p`` (1 on the functions the step held at rest for want of material,
+    else 0), a particle's values of the other fields but ``p`` are taken over the functions the step
+    moved, ``sum_i N_i f_i / (1 - sum_i N_i held_i)`` (:func:`_restore_held`).
     """
     if noise is not None and kind in NOISE_FILTERED:
         update_state(g2p, particles, kind, share, values, divergence, rest)
@@ -519,7 +523,8 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
     else:
         rule, affine = _G2P_RULES.index(affine_rule(kind)), (particles[name] for name in AFFINE_FIELDS)
     _g2p_state(phi, lfun, function_nodes(space), np.ascontiguousarray(particles.x), g2p.values,
-               np.array([space.field_offset(name) for name in ("dv", "da", "v", "a")]), float(share),
+               np.array([space.field_offset(name) for name in ("dv", "da", "v", "a")]), *_held_fields(space),
+               float(share),
                float(rest[0]), float(rest[1]), rule,
                space.grid.h, _moment_floor(space.grid.h), particles["velocity"], particles["acceleration"], *affine,
                values, divergence)
@@ -629,10 +634,56 @@ def _particle_derivative(phi_p, lfun_p, grid_values, d, c):
     return s
 
 
+def _held_fields(space: Space) -> tuple[int, np.ndarray]:
+    """The offset of the field ``held`` in ``space`` (-1 without it) and the components :func:`_restore_held`
+    takes over the moved functions: those of every field but ``held`` and ``p``."""
+    if "held" not in space.fields:
+        return -1, np.empty(0, dtype=np.int64)
+    return space.field_offset("held"), np.array([space.field_offset(name) + c for name, size in space.fields.items()
+                                                 if name not in ("held", "p") for c in range(size)], dtype=np.int64)
+
+
+#: a particle takes its values over the moved functions while their weight is at least this (_restore_held)
+MOVED_WEIGHT_FLOOR = 0.5
+
+
+@numba.njit(cache=True, inline="always")
+def _restore_held(at, held, restored):
+    """A particle's grid values ``at`` over the functions the step moved: ``at[c] / (1 - at[held])`` for the
+    components ``restored``, where ``at[held]``, the weight of the functions held at rest, is above zero.
+
+    A function with less material than a solve needs (``min_support_fraction``) is held at rest: its
+    values are zero, not the flow's. A particle at the edge of the water, or alone (a drop), that weighs
+    it would take a share of zero into its change, its new velocity and its displacement: a drop fell
+    short of free fall by that share. The partition of unity over the moved functions restores the
+    whole; a particle weighing mostly held functions (moved weight below :data:`MOVED_WEIGHT_FLOOR`)
+    is left as it is. Returns whether it restored them."""
+    if held < 0 or at[held] <= 0.0 or 1.0 - at[held] < MOVED_WEIGHT_FLOOR:
+        return False
+    scale = 1.0 / (1.0 - at[held])
+    for c in restored:
+        at[c] *= scale
+    return True
+
+
+def restore_held(space: Space, values: np.ndarray):
+    """:func:`_restore_held` on each row of ``values`` ``(n, bs)``, the fields of ``space`` at the particles."""
+    held, restored = _held_fields(space)
+    if held >= 0:
+        _restore_held_rows(values, held, restored)
+
+
 @numba.njit(cache=True)
-def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rest_share, rest_speed, rule, h, floor, velocity,
-               acceleration, affine_velocity, affine_acceleration, values, divergence):
-    """:func:`update_state` particle by particle: the values of ``grid_values`` into ``values[p]``, the
+def _restore_held_rows(values, held, restored):
+    for p in range(values.shape[0]):
+        _restore_held(values[p], held, restored)
+
+
+@numba.njit(cache=True)
+def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, held, restored, share, rest_share, rest_speed, rule, h,
+               floor, velocity, acceleration, affine_velocity, affine_acceleration, values, divergence):
+    """:func:`update_state` particle by particle: the values of ``grid_values`` into ``values[p]`` (over the
+    moved functions, :func:`_restore_held`, ``held`` the offset of that field, -1 without), the
     :func:`flip` of velocity and acceleration (``offsets``: of ``dv``, ``da``, ``v``, ``a``; the PIC share
     rising from ``share`` to ``rest_share`` as the new speed falls from ``rest_speed`` to zero), ``div v``,
     and with ``rule`` the affine parts of ``v`` and ``a`` (0: APIC's ``B D^-1``, 1: the grid gradient; -1: none)."""
@@ -642,6 +693,7 @@ def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rest_share, res
     for p in range(lfun.shape[0]):
         phi_p, lfun_p, at = phi[p], lfun[p], values[p]
         particle_jets(phi_p, lfun_p, grid_values, values[p:p + 1])  # the values: the first jet
+        restoring = _restore_held(at, held, restored)
         k = share
         if rest_share > share:
             speed = np.sqrt(at[v] * at[v] + at[v + 1] * at[v + 1])
@@ -656,6 +708,11 @@ def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, share, rest_share, res
             d00, d01, d11 = _second_moments(phi_p, lfun_p, nodes, x[p])
             for k in range(4):
                 b[k, 0], b[k, 1] = _first_moment(phi_p, lfun_p, nodes, x[p], grid_values, components[k])
+            if restoring:  # the held functions at the particle's restored values: B += f_p sum_held N_i (x_i - x_p)
+                m0, m1 = _first_moment(phi_p, lfun_p, nodes, x[p], grid_values, held)
+                for k in range(4):
+                    b[k, 0] += at[components[k]] * m0
+                    b[k, 1] += at[components[k]] * m1
             _times_inverse_moments(b, d00, d01, d11, floor, C)
         elif rule == 1:
             for k in range(4):
