@@ -261,7 +261,9 @@ def test_a_long_run_settles_with_its_volume(full):
         # and 0.0030 to 3 s with a PIC share of 105 or 95 /s). Lagged by a step, the wall held the wave falling back from
         # it at 2.59 s with 209 cells' weight, and the energy jumped by 0.0105 within two steps (0.0040 to 0.0068 to 3 s
         # across such variants)
-        assert_sound(o, 800, speed_ratio=2.11, energy_max=1.0 + 0.009, energy_rise=0.005)
+        # measured 2.280, 1.0, 0.0020 to 40 s with G2P over the moved functions (2.250, 1.0, 0.003 with the default
+        # shares, docs/hard-cases.md): its first 2 s are test_dam_break_of_water's, whose jet this is
+        assert_sound(o, 800, speed_ratio=2.3, energy_max=1.0 + 0.009, energy_rise=0.005)
     else:  # the big step's energy error: the first 2 s are test_dam_break_at_ten_times_the_seeds_step's
         assert_sound(o, 800, speed_ratio=2.5, energy_max=1.0 + EXACT, energy_rise=0.065)
     # the layer's surface, a snapshot of a still sloshing layer (it moves with round-off): 75.9 mm after 5 s with
