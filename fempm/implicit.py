@@ -46,12 +46,13 @@ def _grid_state(p2g, m, mv, ma, count, rho, reference, min_support, min_pressure
     """:meth:`ImplicitSolver.project`'s grid fields from the P2G sums ``p2g`` (columns ``m``, ``mv``,
     ``ma``, ``count``) and the smoothed density ``rho``, function by function: ``v = (m v) / m`` and
     ``a = (m a) / m`` where the material's fraction ``rho / reference`` reaches ``min_support`` (else
-    0, and ``held`` 1); for the owned functions (the rows of ``keep``) every dof kept there, the pressure
-    only where the fraction reaches ``min_pressure`` and ``min_count`` particles or more share the support."""
+    0, and ``held`` 1 in both directions); for the owned functions (the rows of ``keep``) every dof kept there,
+    the pressure only where the fraction reaches ``min_pressure`` and ``min_count`` particles or more share the
+    support."""
     for f in range(p2g.shape[0]):
         mass, fraction = p2g[f, m], rho[f] / reference
         moving = mass > 0 and fraction >= min_support
-        held[f] = 0.0 if moving else 1.0
+        held[f, 0] = held[f, 1] = 0.0 if moving else 1.0
         for c in range(2):
             velocity[f, c] = p2g[f, mv + c] / mass if moving else 0.0
             acceleration[f, c] = p2g[f, ma + c] / mass if moving else 0.0
@@ -66,7 +67,8 @@ def _g2p_fields(U, u, p, v_n, a_n, v_new, a_new, held, out, du, dv, da, v, a, pr
     ``da``, ``v``, ``a``, ``pressure``, ``held_at``): the solved ``du`` and ``p`` (of ``U``, from ``u`` and
     ``p``), the changes ``v_{n+1} - v_n`` and ``a_{n+1} - a_n``, the new values, and ``held``."""
     for f in range(out.shape[0]):
-        out[f, held_at] = held[f]
+        out[f, held_at] = held[f, 0]
+        out[f, held_at + 1] = held[f, 1]
         for c in range(2):
             out[f, du + c] = U[f, u + c]
             out[f, dv + c] = v_new[f, c] - v_n[f, c]
@@ -133,8 +135,8 @@ class ImplicitSolver(Stepper):
                              f"pressure_quadrature is 'particles': set it to 'gauss'")
         self._jet_order = max(self.forms.residual.order, self.forms.jacobian.order)  # the jets the forms read
         self._p2g = GridFunction(Space(basis, {"m": 1, "mv": 2, "ma": 2, "count": 1}), "p2g")
-        self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1, "held": 1}), "g2p")
-        self._held = np.zeros(len(self._g2p.values))  # 1 on the functions a step held at rest (project)
+        self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1, "held": 2}), "g2p")
+        self._held = GridFunction(Space(basis, {"held": 2}), "held")  # 1 where a step held at rest (project)
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
         self._deep_water = DeepWater(s.scalar_space)
         self.check_pressure = self._pressure_check()
@@ -204,7 +206,7 @@ class ImplicitSolver(Stepper):
             _, a_new = self.system.end_state()
             g.values[:] = 0.0
             g.field("a")[:] = a_new
-            g.field("held")[:, 0] = self._held
+            g.field("held")[:] = self._held.values
             jets = transfer.grid_jets_to_particles(g, p, order=1)
             transfer.restore_held(g.space, jets[:, 0, :])  # over the functions the step moved
             p["acceleration"][:] = jets[:, 0, g.space.field_slice("a")]
@@ -245,8 +247,9 @@ class ImplicitSolver(Stepper):
         _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
                     self._reference_density, c.min_support_fraction, c.min_pressure_support,
                     -(-self.basis.functions_per_cell // 3), s.fields["grid_velocity"].values,
-                    s.fields["grid_acceleration"].values, self._held, keep, s.space.field_offset("p"))
+                    s.fields["grid_acceleration"].values, self._held.values, keep, s.space.field_offset("p"))
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs
+        s.walls.clear(self._held)  # a wall's motion is a value, not a held function's zero
         # for a solve again with fewer held walls (solve): the material's dofs, v_n and a_n before the walls'
         self._material = keep.ravel().copy()
         self._projected = {name: s.fields[name].values.copy() for name in ("grid_velocity", "grid_acceleration")}
@@ -264,7 +267,7 @@ class ImplicitSolver(Stepper):
         p, s, g = self.particles, self.system, self._g2p
         v_new, a_new = s.end_state()
         _g2p_fields(s.U.values, s.space.field_offset("u"), s.space.field_offset("p"), s.fields["grid_velocity"].values,
-                    s.fields["grid_acceleration"].values, v_new, a_new, self._held, g.values,
+                    s.fields["grid_acceleration"].values, v_new, a_new, self._held.values, g.values,
                     *(g.space.field_offset(name) for name in ("du", "dv", "da", "v", "a", "p", "held")))
         sc = self.scheme
         values, divergence = self._particle_room(len(p), g.space.bs)

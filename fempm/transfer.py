@@ -508,9 +508,9 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
     For the rest of a caller's G2P, into its buffers (reused from step to step): ``values``
     ``(n, bs)``, all of ``g2p`` at the particles, and ``divergence`` ``(n,)``, ``div v_{n+1}`` there.
 
-    With a field ``held`` in ``g2p`` (1 on the functions the step held at rest for want of material,
-    else 0), a particle's values of the other fields but ``p`` are taken over the functions the step
-    moved, ``sum_i N_i f_i / (1 - sum_i N_i held_i)`` (:func:`_restore_held`).
+    With a two-component field ``held`` in ``g2p`` (1 along the directions the step held at rest for want
+    of material, else 0), a particle's values of the other vector fields are taken over the functions the
+    step moved, ``sum_i N_i f_i / (1 - sum_i N_i held_i)`` (:func:`_restore_held`).
     """
     if noise is not None and kind in NOISE_FILTERED:
         update_state(g2p, particles, kind, share, values, divergence, rest)
@@ -635,35 +635,49 @@ def _particle_derivative(phi_p, lfun_p, grid_values, d, c):
 
 
 def _held_fields(space: Space) -> tuple[int, np.ndarray]:
-    """The offset of the field ``held`` in ``space`` (-1 without it) and the components :func:`_restore_held`
-    takes over the moved functions: those of every field but ``held`` and ``p``."""
+    """The offset of the two-component field ``held`` in ``space`` (-1 without it) and the components
+    :func:`_restore_held` takes over the moved functions, rows ``(component, d)``: those of the other
+    two-component fields, each with its direction ``d`` (the component of ``held`` it goes by)."""
     if "held" not in space.fields:
-        return -1, np.empty(0, dtype=np.int64)
-    return space.field_offset("held"), np.array([space.field_offset(name) + c for name, size in space.fields.items()
-                                                 if name not in ("held", "p") for c in range(size)], dtype=np.int64)
+        return -1, np.empty((0, 2), dtype=np.int64)
+    return space.field_offset("held"), np.array([(space.field_offset(name) + d, d) for name, size in space.fields.items()
+                                                 if name != "held" and size == 2 for d in range(2)], dtype=np.int64)
 
 
-#: a particle takes its values over the moved functions while their weight is at least this (_restore_held)
-MOVED_WEIGHT_FLOOR = 0.5
+#: :func:`_restore_held` takes the held functions at a particle's value up to this weight of them, then less,
+#: none from twice it
+HELD_WEIGHT_RESTORED = 0.1
+
+
+@numba.njit(cache=True, inline="always")
+def _restored_share(at, held, d):
+    """The share ``s`` of its value a particle gives the held functions along direction ``d``, by their
+    weight ``w = at[held + d]``: 1 up to :data:`HELD_WEIGHT_RESTORED`, falling linearly to 0 at twice it
+    (0 without a field ``held``, ``held`` < 0)."""
+    if held < 0:
+        return 0.0
+    w = at[held + d]
+    return min(max(2.0 - w / HELD_WEIGHT_RESTORED, 0.0), 1.0) if w > 0.0 else 0.0
 
 
 @numba.njit(cache=True, inline="always")
 def _restore_held(at, held, restored):
-    """A particle's grid values ``at`` over the functions the step moved: ``at[c] / (1 - at[held])`` for the
-    components ``restored``, where ``at[held]``, the weight of the functions held at rest, is above zero.
+    """A particle's grid values ``at`` with the held functions at the particle's value times ``s``
+    (:func:`_restored_share`): ``at[c] / (1 - s at[held + d])`` for the components ``c`` of ``restored`` (rows
+    ``(c, d)``).
 
     A function with less material than a solve needs (``min_support_fraction``) is held at rest: its
-    values are zero, not the flow's. A particle at the edge of the water, or alone (a drop), that weighs
-    it would take a share of zero into its change, its new velocity and its displacement: a drop fell
-    short of free fall by that share. The partition of unity over the moved functions restores the
-    whole; a particle weighing mostly held functions (moved weight below :data:`MOVED_WEIGHT_FLOOR`)
-    is left as it is. Returns whether it restored them."""
-    if held < 0 or at[held] <= 0.0 or 1.0 - at[held] < MOVED_WEIGHT_FLOOR:
-        return False
-    scale = 1.0 / (1.0 - at[held])
-    for c in restored:
-        at[c] *= scale
-    return True
+    values are zero, not the flow's (``held`` 1 there, by direction; 0 where a wall holds the direction, whose
+    value is the wall's own motion). A particle at the edge of the water, or alone (a drop), that weighs it
+    would take a share of zero into its change, its new velocity and its displacement: a drop fell short of
+    free fall by that share. The partition of unity over the moved functions restores the whole where the held
+    ones weigh little; a particle that leans on them more, whose few moved functions say little of it, is
+    divided by no less than ``1 - HELD_WEIGHT_RESTORED`` and, from twice that weight, left as it is."""
+    for i in range(restored.shape[0]):
+        c, d = restored[i, 0], restored[i, 1]
+        share = _restored_share(at, held, d)
+        if share > 0.0:
+            at[c] = at[c] / (1.0 - share * at[held + d])
 
 
 def restore_held(space: Space, values: np.ndarray):
@@ -693,7 +707,7 @@ def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, held, restored, share,
     for p in range(lfun.shape[0]):
         phi_p, lfun_p, at = phi[p], lfun[p], values[p]
         particle_jets(phi_p, lfun_p, grid_values, values[p:p + 1])  # the values: the first jet
-        restoring = _restore_held(at, held, restored)
+        _restore_held(at, held, restored)
         k = share
         if rest_share > share:
             speed = np.sqrt(at[v] * at[v] + at[v + 1] * at[v + 1])
@@ -708,11 +722,13 @@ def _g2p_state(phi, lfun, nodes, x, grid_values, offsets, held, restored, share,
             d00, d01, d11 = _second_moments(phi_p, lfun_p, nodes, x[p])
             for k in range(4):
                 b[k, 0], b[k, 1] = _first_moment(phi_p, lfun_p, nodes, x[p], grid_values, components[k])
-            if restoring:  # the held functions at the particle's restored values: B += f_p sum_held N_i (x_i - x_p)
-                m0, m1 = _first_moment(phi_p, lfun_p, nodes, x[p], grid_values, held)
-                for k in range(4):
-                    b[k, 0] += at[components[k]] * m0
-                    b[k, 1] += at[components[k]] * m1
+            for d in range(2):  # the held functions at s f_p (_restore_held): B += s f_p sum_held N_i (x_i - x_p)
+                given = _restored_share(at, held, d)
+                if given > 0.0:
+                    m0, m1 = _first_moment(phi_p, lfun_p, nodes, x[p], grid_values, held + d)
+                    for k in (d, 2 + d):
+                        b[k, 0] += given * at[components[k]] * m0
+                        b[k, 1] += given * at[components[k]] * m1
             _times_inverse_moments(b, d00, d01, d11, floor, C)
         elif rule == 1:
             for k in range(4):

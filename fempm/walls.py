@@ -281,6 +281,11 @@ class Walls:
             acceleration.vector.array[self._vector_index] = 0.0
             acceleration.scatter_forward()
 
+    def clear(self, flag: GridFunction):
+        """Zero on the held dofs of a two-component grid function ``flag`` (ghosts updated)."""
+        flag.vector.array[self._vector_index] = 0.0
+        flag.scatter_forward()
+
     def held_mask(self, vector_space: Space) -> np.ndarray:
         """Boolean ``(local functions, 2)``: the components held, owned and ghost, on a space of
         the same basis with one two-component field."""

@@ -270,25 +270,32 @@ def test_a_step_of_the_particle_state_keeps_an_affine_field(comm, kind):
 
 @pytest.mark.mpi
 def test_g2p_takes_the_values_over_the_functions_the_step_moved(comm):
-    """A uniform velocity c on the functions the step moved, zero on those it held (a column of nodes at
-    x >= 0.8): with a whole PIC share a particle whose held weight w is below MOVED_WEIGHT_FLOOR takes c
-    exactly and no affine part (the held functions at its restored value), one above keeps (1 - w) c."""
+    """A uniform velocity c on the functions the step moved, zero on those it held (the nodes at x >= 0.8), held
+    along x only (along y a wall's zero, a value): with a whole PIC share a particle whose held weight w is at
+    most HELD_WEIGHT_RESTORED takes c_x exactly and no affine part along x (the held functions at its value),
+    one from twice it keeps (1 - w) c_x, one between (1 - w) c_x / (1 - s w) with s = 2 - w / HELD_WEIGHT_RESTORED;
+    every particle keeps (1 - w) c_y."""
     grid = fempm.Grid(comm, (0.0, 0.0), (1.0, 0.6), 0.1)
     basis = fempm.BSpline2(grid)
     particles = random_particles(grid, [3, 1, 4])
     transfer.add_affine_fields(particles, "affine-flip")
     c = np.array([0.7, -0.2])
-    g2p = fempm.GridFunction(fempm.Space(basis, {"dv": 2, "da": 2, "v": 2, "a": 2, "held": 1}))
+    g2p = fempm.GridFunction(fempm.Space(basis, {"dv": 2, "da": 2, "v": 2, "a": 2, "held": 2}))
     held = transfer.function_nodes(g2p.space)[:, 0] >= 0.8
     g2p.field("held")[:, 0] = held
     g2p.field("v")[:] = g2p.field("a")[:] = np.where(held[:, None], 0.0, c)
     w = transfer.grid_to_particles(g2p, particles)[:, g2p.space.field_slice("held")][:, 0]
-    assert ((w > 0) & (w < transfer.MOVED_WEIGHT_FLOOR)).any() and (w >= transfer.MOVED_WEIGHT_FLOOR).any()
-    transfer.update_state(g2p, particles, "affine-flip", 1.0, np.empty((len(particles), 9)), np.empty(len(particles)))
-    restored = w < transfer.MOVED_WEIGHT_FLOOR
-    np.testing.assert_allclose(particles["velocity"][restored], np.broadcast_to(c, (restored.sum(), 2)), atol=1e-14)
-    np.testing.assert_allclose(particles["affine_velocity"][restored], 0.0, atol=1e-12)
-    np.testing.assert_allclose(particles["velocity"][~restored], (1 - w[~restored, None]) * c, atol=1e-14)
+    whole = (w > 0) & (w <= transfer.HELD_WEIGHT_RESTORED)
+    for some in (whole, (w > transfer.HELD_WEIGHT_RESTORED) & (w < 2 * transfer.HELD_WEIGHT_RESTORED),
+                 w >= 2 * transfer.HELD_WEIGHT_RESTORED):
+        assert comm.allreduce(int(some.sum())) > 0
+    transfer.update_state(g2p, particles, "affine-flip", 1.0, np.empty((len(particles), 10)), np.empty(len(particles)))
+    v, C = particles["velocity"], particles["affine_velocity"]
+    share = np.clip(2 - w / transfer.HELD_WEIGHT_RESTORED, 0, 1)
+    np.testing.assert_allclose(v[:, 0], (1 - w) * c[0] / (1 - share * w), atol=1e-14)
+    np.testing.assert_allclose(v[whole, 0], c[0], atol=1e-14)
+    np.testing.assert_allclose(C[whole, 0, :], 0.0, atol=1e-12)
+    np.testing.assert_allclose(v[:, 1], (1 - w) * c[1], atol=1e-14)
 
 
 def test_pic_share():
