@@ -510,7 +510,7 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
 
     With a two-component field ``held`` in ``g2p`` (1 along the directions the step held at rest for want
     of material, else 0), a particle's values of the other vector fields are taken over the functions the
-    step moved, ``sum_i N_i f_i / (1 - sum_i N_i held_i)`` (:func:`_restore_held`).
+    step moved where the held ones weigh little, ``sum_i N_i f_i / (1 - s sum_i N_i held_i)`` (:func:`_restore_held`).
     """
     if noise is not None and kind in NOISE_FILTERED:
         update_state(g2p, particles, kind, share, values, divergence, rest)
