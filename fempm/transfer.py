@@ -540,11 +540,18 @@ class NoiseFilter:
     A particle's difference from the grid, ``d_p = v_p - v_{n+1}(x_p)`` (likewise the acceleration),
     holds a smooth part the grid resolves (near a kink of the flow, or where the grid lags a
     particle's own history) and particle-to-particle noise in the null space of P2G, which FLIP
-    never damps. The smooth part is ``S d``, the difference taken to the grid and back
-    (mass-weighted P2G, G2P); the share damps ``d - S d`` alone:
-    ``v_p <- v_p - k (d_p - (S d)_p)``, which keeps linear momentum (``sum_p m_p (S d)_p = sum_p m_p d_p``).
-    Like XPIC (Hammerquist & Nairn 2017), it filters the null-space noise without PIC's smoothing of
-    the resolved flow.
+    never damps. The smooth part is ``S d``, the difference fitted linearly over each function's
+    particles and taken back: per function ``i`` the mass-weighted least-squares fit
+    ``db_i + g_i . (x - xb_i)`` (weights ``m_p N_i(x_p)``, ``xb_i`` their centre, the gradient's normal
+    matrix's smallest eigenvalue raised to :data:`FIT_FLOOR` ``h^2`` where the particles barely spread), and
+    ``(S d)_p = sum_i N_i(x_p) (db_i + g_i . (x_p - xb_i))``. The share damps ``d - S d`` alone:
+    ``v_p <- v_p - k (d_p - (S d)_p)``, which keeps linear momentum (``sum_p m_p (S d)_p = sum_p m_p d_p``:
+    each fit's gradient term has zero weighted mean). Like XPIC (Hammerquist & Nairn 2017), it filters the
+    null-space noise without PIC's smoothing of the resolved flow. The fit takes a difference that varies
+    linearly as smooth everywhere; a fit's mean alone (P2G and G2P) does only where a function's
+    particles lie evenly around its node, not along a wall or a free surface, where it took the flow's
+    gradient there for noise and slowed water sliding along a floor, more as the step fell (README, "The
+    PIC shares").
 
     A particle alone in its functions' support is its own smoothing (``S d = d``), so its noise
     would never be damped: where the particle's own weight in its smoothing,
@@ -555,7 +562,7 @@ class NoiseFilter:
     """
 
     def __init__(self, basis):
-        self._grid = GridFunction(Space(basis, {"m": 1, "d": 4}), "noise")
+        self._grid = GridFunction(Space(basis, {"m": 1, "r": 2, "rr": 3, "d": 4, "rd": 8}), "noise")
         self._difference = np.empty((0, 4))
 
     def damp(self, space: Space, particles, values: np.ndarray, share: float):
@@ -569,18 +576,21 @@ class NoiseFilter:
             self._difference = np.empty((len(particles), 4))
         grid, velocity, acceleration = self._grid, particles["velocity"], particles["acceleration"]
         grid.values[:] = 0.0
-        _noise_to_grid(phi, lfun, particles["mass"], velocity, acceleration, values, space.field_offset("v"),
+        nodes, x = function_nodes(space), np.ascontiguousarray(particles.x)
+        _noise_moments(phi, lfun, nodes, x, particles["mass"], velocity, acceleration, values, space.field_offset("v"),
                        space.field_offset("a"), self._difference, grid.values)
         grid.scatter_reverse_add()
         grid.scatter_forward()
-        _per_unit_mass(grid.values)
-        _take_noise(phi, lfun, particles["mass"], grid.values, self._difference, float(share), velocity, acceleration)
+        _fit_noise(grid.values, FIT_FLOOR * space.grid.h**2)
+        _take_noise(phi, lfun, nodes, x, particles["mass"], grid.values, self._difference, float(share), velocity,
+                    acceleration)
 
 
 @numba.njit(cache=True)
-def _noise_to_grid(phi, lfun, mass, velocity, acceleration, values, v, a, difference, out):
-    """``difference[p]``: the particle's velocity and acceleration less the grid's (``values``, fields at
-    offsets ``v``, ``a``); P2G of the mass and the mass-weighted difference into ``out`` (m, d0..d3)."""
+def _noise_moments(phi, lfun, nodes, x, mass, velocity, acceleration, values, v, a, difference, out):
+    """``difference[p]``: the particle's velocity and acceleration less the grid's (``values``, fields at offsets
+    ``v``, ``a``); P2G into ``out`` of the moments of a linear fit of it per function:
+    ``m``, ``m r`` (2), ``m r r^T`` (xx, xy, yy), ``m d`` (4), ``m r_a d_c`` (8, ``4 a + c``), ``r = x_p - x_i``."""
     for p in range(lfun.shape[0]):
         m = mass[p]
         for c in range(2):
@@ -588,40 +598,77 @@ def _noise_to_grid(phi, lfun, mass, velocity, acceleration, values, v, a, differ
             difference[p, 2 + c] = acceleration[p, c] - values[p, a + c]
         for l in range(lfun.shape[1]):
             f, w = lfun[p, l], phi[p, 0, l]
-            out[f, 0] += w * m
+            wm = w * m
+            r0, r1 = x[p, 0] - nodes[f, 0], x[p, 1] - nodes[f, 1]
+            out[f, 0] += wm
+            out[f, 1] += wm * r0
+            out[f, 2] += wm * r1
+            out[f, 3] += wm * r0 * r0
+            out[f, 4] += wm * r0 * r1
+            out[f, 5] += wm * r1 * r1
             for c in range(4):
-                out[f, 1 + c] += w * (m * difference[p, c])
+                out[f, 6 + c] += wm * difference[p, c]
+                out[f, 10 + c] += wm * r0 * difference[p, c]
+                out[f, 14 + c] += wm * r1 * difference[p, c]
 
 
 @numba.njit(cache=True)
-def _per_unit_mass(grid):
-    """The grid's mass-weighted difference over its nodal mass (0 where there is none)."""
+def _fit_noise(grid, floor):
+    """Per function, from the moments of :func:`_noise_moments`, the weighted least-squares linear fit of the
+    difference: the mean offset ``rb`` (columns 1, 2), the mean ``db`` (6..9) and the gradient ``g`` (10 + 4 a + c),
+    ``g = (C + e I)^-1 cov(r, d)``, ``C`` the particles' spread, ``e`` what raises its smallest eigenvalue to
+    ``floor`` (0 where it is above)."""
     for f in range(grid.shape[0]):
         m = grid[f, 0]
-        for c in range(1, grid.shape[1]):
-            grid[f, c] = grid[f, c] / m if m > 0 else 0.0
+        if m <= 0.0:
+            grid[f, 1:] = 0.0
+            continue
+        r0, r1 = grid[f, 1] / m, grid[f, 2] / m
+        cxx = grid[f, 3] / m - r0 * r0
+        cxy = grid[f, 4] / m - r0 * r1
+        cyy = grid[f, 5] / m - r1 * r1
+        smallest = 0.5 * (cxx + cyy - np.sqrt((cxx - cyy) ** 2 + 4.0 * cxy * cxy))
+        raised = max(floor - smallest, 0.0)  # the smallest spread raised to the floor, the fit exact above it
+        cxx, cyy = cxx + raised, cyy + raised
+        det = cxx * cyy - cxy * cxy
+        grid[f, 1], grid[f, 2] = r0, r1
+        for c in range(4):
+            db = grid[f, 6 + c] / m
+            k0 = grid[f, 10 + c] / m - r0 * db
+            k1 = grid[f, 14 + c] / m - r1 * db
+            grid[f, 6 + c] = db
+            grid[f, 10 + c] = (cyy * k0 - cxy * k1) / det
+            grid[f, 14 + c] = (cxx * k1 - cxy * k0) / det
+
+
+@numba.njit(cache=True)
+def _take_noise(phi, lfun, nodes, x, mass, grid, difference, share, velocity, acceleration):
+    """``state_p -= share (d_p - (1 - l_p) (S d)_p)``, ``(S d)_p = sum_i N_i(x_p) (db_i + g_i . (x_p - x_i - rb_i))``
+    from the fits of :func:`_fit_noise` (``grid``), ``l_p`` the particle's loneness (:class:`NoiseFilter`)."""
+    smooth = np.empty(4)
+    for p in range(lfun.shape[0]):
+        own = 0.0
+        smooth[:] = 0.0
+        for l in range(lfun.shape[1]):
+            f, w = lfun[p, l], phi[p, 0, l]
+            if w == 0.0:
+                continue
+            own += w * w * mass[p] / grid[f, 0]
+            e0 = x[p, 0] - nodes[f, 0] - grid[f, 1]
+            e1 = x[p, 1] - nodes[f, 1] - grid[f, 2]
+            for c in range(4):
+                smooth[c] += w * (grid[f, 6 + c] + grid[f, 10 + c] * e0 + grid[f, 14 + c] * e1)
+        kept = 1.0 - min(max((own - LONE_WEIGHT) / (1.0 - LONE_WEIGHT), 0.0), 1.0)
+        for c in range(2):
+            velocity[p, c] -= share * (difference[p, c] - kept * smooth[c])
+            acceleration[p, c] -= share * (difference[p, 2 + c] - kept * smooth[2 + c])
 
 
 #: a particle's own weight in its difference's smoothing above which it counts as (partly) alone (NoiseFilter)
 LONE_WEIGHT = 0.5
-
-
-@numba.njit(cache=True)
-def _take_noise(phi, lfun, mass, grid, difference, share, velocity, acceleration):
-    """``state_p -= share (d_p - (1 - l_p) (S d)_p)``, ``S d`` the grid's difference at the particle (``grid``: the
-    nodal mass, then the difference per unit mass), ``l_p`` its loneness (:class:`NoiseFilter`)."""
-    smooth = np.empty((1, grid.shape[1]))
-    for p in range(lfun.shape[0]):
-        particle_jets(phi[p], lfun[p], grid, smooth)
-        own = 0.0
-        for l in range(lfun.shape[1]):
-            w = phi[p, 0, l]
-            if w != 0.0:
-                own += w * w * mass[p] / grid[lfun[p, l], 0]
-        kept = 1.0 - min(max((own - LONE_WEIGHT) / (1.0 - LONE_WEIGHT), 0.0), 1.0)
-        for c in range(2):
-            velocity[p, c] -= share * (difference[p, c] - kept * smooth[0, 1 + c])
-            acceleration[p, c] -= share * (difference[p, 2 + c] - kept * smooth[0, 3 + c])
+#: NoiseFilter's fits raise their particles' spread (the gradient's normal matrix per unit mass) to at least this
+#: times h^2 along every direction: where a function's particles lie along a line the fit across it is its mean
+FIT_FLOOR = 1.0e-3
 
 
 @numba.njit(cache=True, inline="always")

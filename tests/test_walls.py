@@ -39,7 +39,9 @@ def test_water_thrown_against_the_lid_falls_back():
         one.step()
         two.step()
     mean, top = heights(one)
-    assert mean < 0.06  # measured 0.049 m at t = 0.25 s: fallen to the floor
+    # measured 0.062 m at t = 0.25 s with the noise's linear fit (0.049 with its mean): fallen to the floor and
+    # splashing there, where the two-sided lid holds it at 0.122 m (below)
+    assert mean < 0.075
     assert top < 0.14  # measured 0.129 m (FLIP/PIC 0.072 m): no particle left near the lid (0.2 m)
     assert heights(two)[0] > 0.11  # measured 0.122 m (FLIP/PIC 0.146 m): the two-sided lid holds it
     assert one.walls.stops <= 170  # measured 150 (FLIP/PIC 2): particles cut at the lid by a wall let go a step late

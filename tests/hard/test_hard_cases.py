@@ -153,15 +153,17 @@ def test_dam_break_onto_an_obstacle(full):
     """scenes/obstacle.toml: the surge hits a block, splashes over it in a thin sheet and
     isolated particles; none enters the block (that would stop the run), none is lost."""
     o = measured("obstacle", full)
-    # measured 2.522, 1.0, 7.5e-5 with G2P over the moved functions (2.88, 1.0, 0.0013 over all of them; before the
+    # measured 2.553, 1.0, 0.0023 with the noise's linear fit (2.522, 1.0, 7.5e-5 with its mean); with G2P over the
+    # moved functions (2.88, 1.0, 0.0013 over all of them; before the
     # crowding tolerance 2.923, 1.0001, 0.0011): a wave landing on the thin layer that flows back along the floor
     # squeezes out a jet (6.89 m/s at 2.899) (from a_0 = 0: 2.427, 1.00009, 0.0014; start-configuration divergence
     # 2.405, 1.00048, 0.0037; FLIP/PIC 1.562)
     assert_sound(o, 800, speed_ratio=2.93, energy_max=1.0 + bound(full, 6e-4, 6e-4),
                  energy_rise=bound(full, 0.004, 0.004))
-    # measured 1.200 (0.6 s) with G2P over the moved functions; 1.235 (0.6 s), 1.145 (2 s) (before the crowding tolerance 1.225, 1.185; from a_0 = 0: 1.235); FLIP/PIC
-    # 1.06 (0.6 s), 1.125 (2 s)
-    assert 1.05 <= cell_ratio(o) <= 1.24
+    # measured 1.245 (0.6 s) with the noise's linear fit, which leaves the splash's sheet more of its own motion
+    # (1.200 with its mean); 1.235 (0.6 s), 1.145 (2 s) before G2P over the moved functions (before the crowding
+    # tolerance 1.225, 1.185; from a_0 = 0: 1.235); FLIP/PIC 1.06 (0.6 s), 1.125 (2 s)
+    assert 1.05 <= cell_ratio(o) <= 1.26
     assert not o.solver.grid.blocked[o.solver.particles.cell].any()
 
 
@@ -208,7 +210,7 @@ def test_a_sparse_cloud_falls_freely_and_lands(full):
     -53 kPa) that throws one out; at dt 9e-4 s and 1.1e-3 s a particle leaves at 2.5-3.6 m/s
     (the energy check stops the second)."""
     o = measured("sparse-cloud", full)
-    # measured 1.029, 1.0, 0.0080 with the walls letting go within the step where they pull hard (fempm.walls); 1.031, 1.0, 0.0078 (before the crowding tolerance 0.0107; from a_0 = 0: 1.030, 1.0, 0.0237; start-configuration divergence 1.046,
+    # measured 0.988, 1.0, 0.0092 with the noise's linear fit (2 s: 0.988, 1.0, 0.0092); 1.029, 1.0, 0.0080 with the walls letting go within the step where they pull hard (fempm.walls); 1.031, 1.0, 0.0078 (before the crowding tolerance 0.0107; from a_0 = 0: 1.030, 1.0, 0.0237; start-configuration divergence 1.046,
     # 1.0, 0.0094; FLIP/PIC 0.865, 1.0, 0.0025 (0.6 s), 0.004 (2 s)); the full version was not rerun with the
     # end-of-step forms
     assert_sound(o, len(hc.SPARSE), speed_ratio=1.05, energy_max=1.0 + EXACT,
@@ -219,9 +221,10 @@ def test_a_sparse_cloud_falls_freely_and_lands(full):
     # m, 1.6 h; measured 0.0227 (0.6 s; 0.0151 at 2 s) with PSPG's tau free of the step (with tau's T = max(dt, ...)
     # 0.0187; before the crowding tolerance 0.0217; affine 0.0171); FLIP/PIC 0.0165 (0.6 s), 0.0154 (2 s)
     assert o.surface_height <= 0.0235
-    # m; 0.0174 at 0.6 s with the walls letting go within the step (0.0167 lagged; before the crowding tolerance 0.0157,
-    # FLIP/PIC 0.0165)
-    assert o.history["centroid"][-1, 1] <= bound(full, 0.0180, 2 * hc.h)
+    # m; 0.0197 at 0.6 s with the noise's linear fit, the layer settling later and lower (0.0100 at 1 s, 0.0084 at
+    # 2 s); 0.0174 at 0.6 s with its mean and the walls letting go within the step (0.0167 lagged; before the
+    # crowding tolerance 0.0157, FLIP/PIC 0.0165)
+    assert o.history["centroid"][-1, 1] <= bound(full, 0.0210, 2 * hc.h)
     # measured 0.0806 at 0.6 s with the walls letting go within the step (0.0682 lagged: the held walls took more); (before the crowding tolerance 0.0754; from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.085, 0.1)
 
