@@ -225,8 +225,9 @@ def test_a_sparse_cloud_falls_freely_and_lands(full):
     # 2 s); 0.0174 at 0.6 s with its mean and the walls letting go within the step (0.0167 lagged; before the
     # crowding tolerance 0.0157, FLIP/PIC 0.0165)
     assert o.history["centroid"][-1, 1] <= bound(full, 0.0210, 2 * hc.h)
-    # measured 0.0806 at 0.6 s with the walls letting go within the step (0.0682 lagged: the held walls took more); (before the crowding tolerance 0.0754; from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
-    assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.085, 0.1)
+    # measured 0.0926 at 0.6 s with the noise's linear fit, the layer settling later (its centroid above); 0.0806 at 0.6 s
+    # with its mean and the walls letting go within the step (0.0682 lagged: the held walls took more); (before the crowding tolerance 0.0754; from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
+    assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.1, 0.1)
 
 
 @pytest.mark.mpi
