@@ -35,7 +35,9 @@ named here:
   (:func:`iterative_options`).
 
 The field split needs the fields of the interleaved dofs; a solver given ``fields``
-(e.g. ``{"u": 2, "p": 1}``) builds one index set per field over the free dofs.
+(e.g. ``{"u": 2, "p": 1}``) numbers the free dofs field by field on each rank and takes each
+block of the split straight from the assembled matrix into a ``MATNEST``, the operator itself
+(one rank, the default split: the blocks cut from the grid matrix, :mod:`fempm.schur`).
 """
 
 from __future__ import annotations
@@ -181,11 +183,14 @@ class LinearSolver:
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
         # one rank, a selfp Schur split of a velocity and a pressure: the blocks and S cut from a grid
         # matrix (fempm.schur)
-        self.cuts_blocks = (comm.size == 1 and list(self.fields.values()) == [2, 1]
-                            and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
-                            and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
-                            and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
-                            and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
+        self.selfp = (len(self.fields) == 2 and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
+                      and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
+                      and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
+                      and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
+        self.cuts_blocks = self.selfp and comm.size == 1 and list(self.fields.values()) == [2, 1]
+        # a field split otherwise: its blocks taken straight from the assembled matrix into a MATNEST, the
+        # operator itself (no copy of the whole free block beside them)
+        self.nests_blocks = len(self.fields) > 1 and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
         self._fallback = None
         # the last solve's (matrix, free dofs, their index set or the Schur LU's package, the block or blocks)
         self._previous = None
@@ -211,6 +216,8 @@ class LinearSolver:
         free = np.asarray(free, dtype=PETSc.IntType)
         if self.cuts_blocks and A.getAttr("fempm_grid_matrix") is not None:
             return self._solve_blocks(A, b, free, x)
+        if self.nests_blocks:
+            return self._solve_nest(A, b, free, x)
         previous = self._previous
         same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
         if self.comm.size > 1:
@@ -227,8 +234,6 @@ class LinearSolver:
         b_free = b.getSubVector(index_set)
         x_free = A_free.createVecRight()
         self.ksp.setOperators(A_free)
-        if not same and self.fields and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT:
-            self.ksp.getPC().setFieldSplitIS(*self._splits(free))
         reason = self._ksp_solve(b_free, x_free, A_free.getSize()[0])
         if reason < 0 and self.exact_schur:
             reason = self._solve_by_lu(A_free, b_free, x_free)
@@ -242,14 +247,82 @@ class LinearSolver:
         x.restoreSubVector(index_set, x_sub)
         return x
 
+    def _solve_nest(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None) -> PETSc.Vec:
+        """:meth:`solve` with the field split's blocks cut from ``A`` into a ``MATNEST``: the free dofs
+        numbered field by field on each rank, each block ``A[free_i, free_j]`` extracted once (into the
+        last solve's storage while ``A`` and ``free`` stay)."""
+        previous = self._previous
+        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
+        same = self.comm.allreduce(same, op=MPI.LAND)
+        if same:
+            order, rows, nest = previous[2], previous[3], previous[4]
+            for i, row in enumerate(rows):
+                for j, column in enumerate(rows):
+                    A.createSubMatrix(row, column, submat=nest.getNestSubMatrix(i, j))
+            nest.stateIncrease()
+            self.reuses += 1
+        else:
+            self._release_previous()
+            rows = [PETSc.IS().createGeneral(part, comm=self.comm) for part in self._field_parts(free)]
+            blocks = [[A.createSubMatrix(row, column) for column in rows] for row in rows]
+            first = self.comm.exscan(len(free)) or 0
+            splits = []
+            for name, row in zip(self.fields, rows):
+                splits.append((name, PETSc.IS().createStride(row.getLocalSize(), first, 1, comm=self.comm)))
+                first += row.getLocalSize()
+            nest = PETSc.Mat().createNest(blocks, isrows=[s for _, s in splits], iscols=[s for _, s in splits],
+                                          comm=self.comm)
+            for row_blocks in blocks:
+                for block in row_blocks:
+                    block.destroy()  # the nest holds them
+            order = PETSc.IS().createGeneral(np.concatenate([row.getIndices() for row in rows]), comm=self.comm)
+            self._previous = (A, free.copy(), order, rows, nest)
+            self.ksp.setOperators(nest)
+            self.ksp.getPC().setFieldSplitIS(*splits)
+        if self.selfp:  # PETSc's own would merge A11's pattern into the product's, a copy of both
+            complement = _selfp(nest)
+            self.ksp.getPC().setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, complement)
+            complement.destroy()  # the split holds it
+        b_free = b.getSubVector(order)
+        x_free = b_free.duplicate()
+        reason = self._ksp_solve(b_free, x_free, nest.getSize()[0])
+        if reason < 0 and self.exact_schur:
+            A_free = A.createSubMatrix(order, order)
+            reason = self._solve_by_lu(A_free, b_free, x_free)
+            A_free.destroy()
+        b.restoreSubVector(order, b_free)
+        _check(reason, x_free.getArray(readonly=True))
+        if x is None:
+            x = b.duplicate()
+        x.zeroEntries()
+        x_sub = x.getSubVector(order)
+        x_free.copy(x_sub)
+        x.restoreSubVector(order, x_sub)
+        x_free.destroy()
+        return x
+
+    def _field_parts(self, free: np.ndarray) -> list[np.ndarray]:
+        """This rank's free dofs of each field (global indices, ascending)."""
+        bs = sum(self.fields.values())
+        component = np.asarray(free) % bs
+        parts, first = [], 0
+        for n in self.fields.values():
+            parts.append(free[(component >= first) & (component < first + n)])
+            first += n
+        return parts
+
     def _release_previous(self):
         """Free the last solve's set-up, block and index set before a new free set's are made: the free
         set changes between solves (the size of the operator too), and kept until replaced they
         would add to the peak of the next set-up."""
         self.ksp.reset()
-        if self._previous is not None and isinstance(self._previous[3], PETSc.Mat):
-            self._previous[2].destroy()
-            self._previous[3].destroy()
+        previous = self._previous
+        if previous is not None and isinstance(previous[3], PETSc.Mat):
+            previous[2].destroy()
+            previous[3].destroy()
+        elif previous is not None and len(previous) == 5:  # a nest's (_solve_nest)
+            for kept in (previous[2], *previous[3], previous[4]):
+                kept.destroy()
         self._previous = None
 
     def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, size: int) -> int:
@@ -355,17 +428,23 @@ class LinearSolver:
         self.fallbacks += 1
         return self._fallback.getConvergedReason()
 
-    def _splits(self, free: np.ndarray) -> list[tuple[str, PETSc.IS]]:
-        """One index set per field, numbered as the rows of the free-dof submatrix."""
-        bs = sum(self.fields.values())
-        offset = self.comm.exscan(len(free)) or 0
-        component = np.asarray(free) % bs
-        splits, first = [], 0
-        for name, n in self.fields.items():
-            rows = offset + np.flatnonzero((component >= first) & (component < first + n))
-            splits.append((name, PETSc.IS().createGeneral(rows.astype(PETSc.IntType), comm=self.comm)))
-            first += n
-        return splits
+
+def _selfp(nest: PETSc.Mat) -> PETSc.Mat:
+    """PETSc's ``selfp`` Schur complement ``A11 - A10 diag(A00)^-1 A01`` of a 2 x 2 ``MATNEST``, with A11
+    added into the product's pattern, which holds all of its couplings in a step's system (any other is
+    inserted, as PETSc would)."""
+    A00, A01, A10, A11 = (nest.getNestSubMatrix(i, j) for i, j in ((0, 0), (0, 1), (1, 0), (1, 1)))
+    inverse = A00.getDiagonal()
+    inverse.reciprocal()
+    scaled = A01.duplicate(copy=True)
+    scaled.diagonalScale(L=inverse)
+    complement = A10.matMult(scaled)
+    scaled.destroy()
+    inverse.destroy()
+    complement.scale(-1.0)
+    complement.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
+    complement.axpy(1.0, A11, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    return complement
 
 
 def _ksp_from_options(comm, prefix: str) -> PETSc.KSP:
