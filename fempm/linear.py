@@ -231,21 +231,8 @@ class LinearSolver:
             index_set = PETSc.IS().createGeneral(free, comm=self.comm)
             A_free = A.createSubMatrix(index_set, index_set)
             self._previous = (A, free.copy(), index_set, A_free)
-        b_free = b.getSubVector(index_set)
-        x_free = A_free.createVecRight()
         self.ksp.setOperators(A_free)
-        reason = self._ksp_solve(b_free, x_free, A_free.getSize()[0])
-        if reason < 0 and self.exact_schur:
-            reason = self._solve_by_lu(A_free, b_free, x_free)
-        b.restoreSubVector(index_set, b_free)
-        _check(reason, x_free.getArray(readonly=True))
-        if x is None:
-            x = b.duplicate()
-        x.zeroEntries()
-        x_sub = x.getSubVector(index_set)
-        x_free.copy(x_sub)
-        x.restoreSubVector(index_set, x_sub)
-        return x
+        return self._solve_on(index_set, b, x, lambda: A_free)
 
     def _solve_nest(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None) -> PETSc.Vec:
         """:meth:`solve` with the field split's blocks cut from ``A`` into a ``MATNEST``: the free dofs
@@ -283,21 +270,24 @@ class LinearSolver:
             complement = _selfp(nest)
             self.ksp.getPC().setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, complement)
             complement.destroy()  # the split holds it
-        b_free = b.getSubVector(order)
+        return self._solve_on(order, b, x, lambda: A.createSubMatrix(order, order))
+
+    def _solve_on(self, index_set: PETSc.IS, b: PETSc.Vec, x: PETSc.Vec | None, free_block) -> PETSc.Vec:
+        """The KSP's solve (its operators set) with ``b`` on the dofs of ``index_set``; ``x`` is zero elsewhere.
+        A failed exact Schur iteration is redone by LU of ``free_block()``, the block in that order."""
+        b_free = b.getSubVector(index_set)
         x_free = b_free.duplicate()
-        reason = self._ksp_solve(b_free, x_free, nest.getSize()[0])
+        reason = self._ksp_solve(b_free, x_free, b_free.getSize())
         if reason < 0 and self.exact_schur:
-            A_free = A.createSubMatrix(order, order)
-            reason = self._solve_by_lu(A_free, b_free, x_free)
-            A_free.destroy()
-        b.restoreSubVector(order, b_free)
+            reason = self._solve_by_lu(free_block(), b_free, x_free)
+        b.restoreSubVector(index_set, b_free)
         _check(reason, x_free.getArray(readonly=True))
         if x is None:
             x = b.duplicate()
         x.zeroEntries()
-        x_sub = x.getSubVector(order)
+        x_sub = x.getSubVector(index_set)
         x_free.copy(x_sub)
-        x.restoreSubVector(order, x_sub)
+        x.restoreSubVector(index_set, x_sub)
         x_free.destroy()
         return x
 
