@@ -181,18 +181,19 @@ class LinearSolver:
                             and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
                             and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
-        # one rank, a selfp Schur split of a velocity and a pressure: the blocks and S cut from a grid
-        # matrix (fempm.schur)
+        # a selfp Schur split of two fields: fempm forms the complement (_selfp, or fempm.schur's)
         self.selfp = (len(self.fields) == 2 and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
                       and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
                       and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
                       and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
+        # one rank, a velocity and a pressure: the blocks and S cut from a grid matrix (fempm.schur)
         self.cuts_blocks = self.selfp and comm.size == 1 and list(self.fields.values()) == [2, 1]
         # a field split otherwise: its blocks taken straight from the assembled matrix into a MATNEST, the
         # operator itself (no copy of the whole free block beside them)
         self.nests_blocks = len(self.fields) > 1 and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
         self._fallback = None
-        # the last solve's (matrix, free dofs, their index set or the Schur LU's package, the block or blocks)
+        # the last solve's (matrix, free dofs, their index set or the Schur LU's package, the block or blocks;
+        # a nest's: matrix, free dofs, their index set in the nest's order, each field's, the nest)
         self._previous = None
         self._restored_seed = None  # a resumed run's blocks' seed, for its first solve (pattern_seed)
         self.reuses = 0  # solves that kept the last one's pattern
