@@ -4,8 +4,9 @@ MPM systems have dofs that must not enter the solve: functions no particle
 supports (their rows are empty) and wall conditions. The solve is restricted to
 the *free* dofs by extracting the submatrix, so the factorisation is as small as
 the region the material covers. PETSc options pass through the options database
-under the solver's prefix, e.g. ``-fempm_ksp_type gmres``. Two sets of options are
-named here:
+under the solver's prefix, e.g. ``-fempm_ksp_type gmres``; a solver's own options are set
+there only during its calls, so that a second solver under the same prefix does not inherit
+them. Two sets of options are named here:
 
 * :data:`EXACT` (the default on one rank, :func:`direct_options`): the velocity-pressure
   system reduced to its pressure Schur complement, solved to round-off. FGMRES on the
@@ -42,6 +43,7 @@ block of the split straight from the assembled matrix into a ``MATNEST``, the op
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import re
 
@@ -151,7 +153,7 @@ class LinearSolver:
     Args:
         comm: communicator of the matrices.
         prefix: PETSc options prefix (``-{prefix}ksp_type`` ...).
-        options: PETSc options set under the prefix before the first solve,
+        options: PETSc options set under the prefix during this solver's calls (over the database's),
             e.g. ``{"ksp_type": "gmres"}``; :func:`direct_options` when neither these nor the
             options database choose a ``ksp_type`` or ``pc_type`` under the prefix.
         fields: components per field of the interleaved dofs (``{"u": 2, "p": 1}``);
@@ -164,39 +166,46 @@ class LinearSolver:
         self.prefix = prefix
         self.fields = dict(fields or {})
         opts = PETSc.Options()
-        for key, value in (options or {}).items():
-            opts[prefix + key] = value
-        if not any(opts.hasName(prefix + key) for key in ("ksp_type", "pc_type")):
-            for key, value in direct_options(comm, self.fields).items():
-                opts[prefix + key] = value
-        self.ksp = _ksp_from_options(comm, prefix)
-        if self.ksp.getPC().getType() != PETSc.PC.Type.FIELDSPLIT:  # options naming another solver
-            for key, value in EXACT.items():  # drop the default's options this solver does not read
-                name = prefix + key
-                if (opts.hasName(name) and ("fieldsplit" in key or not opts.used(name))
-                        and opts.getString(name) == str(value)):
-                    opts.delValue(name)
-        # an exact Schur solve (S by LU) whose LU package is not named: chosen by size, MUMPS LU if it fails
-        self.exact_schur = (self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
-                            and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
-                            and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
+        # this solver's own options, in force only during its calls (_options_in_force): another solver
+        # under the same prefix then reads the database as the user left it, not these
+        own = {prefix + key: value for key, value in (options or {}).items()}
+        if not any(name in own or opts.hasName(name) for name in (prefix + "ksp_type", prefix + "pc_type")):
+            own.update({prefix + key: value for key, value in direct_options(comm, self.fields).items()})
+        with _options_in_force(own):
+            self.ksp = _ksp_from_options(comm, prefix)
+            fieldsplit = self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
+            if not fieldsplit:  # options naming another solver: drop the default's options it does not read
+                for key, value in EXACT.items():
+                    name = prefix + key
+                    if name in own and ("fieldsplit" in key or not opts.used(name)) and own[name] == value:
+                        del own[name]
+            # an exact Schur solve (S by LU) whose LU package is not named: chosen by size, MUMPS LU if it fails
+            self.exact_schur = (fieldsplit and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
+                                and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
+            # a selfp Schur split of two fields: fempm forms the complement (_selfp, or fempm.schur's)
+            self.selfp = (len(self.fields) == 2 and fieldsplit
+                          and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
+                          and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
+                          and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
+        self._own_options = own
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
-        # a selfp Schur split of two fields: fempm forms the complement (_selfp, or fempm.schur's)
-        self.selfp = (len(self.fields) == 2 and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
-                      and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
-                      and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
-                      and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
         # one rank, a velocity and a pressure: the blocks and S cut from a grid matrix (fempm.schur)
         self.cuts_blocks = self.selfp and comm.size == 1 and list(self.fields.values()) == [2, 1]
         # a field split otherwise: its blocks taken straight from the assembled matrix into a MATNEST, the
         # operator itself (no copy of the whole free block beside them)
-        self.nests_blocks = len(self.fields) > 1 and self.ksp.getPC().getType() == PETSc.PC.Type.FIELDSPLIT
+        self.nests_blocks = len(self.fields) > 1 and fieldsplit
         self._fallback = None
         # the last solve's (matrix, free dofs, their index set or the Schur LU's package, the block or blocks;
         # a nest's: matrix, free dofs, their index set in the nest's order, each field's, the nest)
         self._previous = None
         self._restored_seed = None  # a resumed run's blocks' seed, for its first solve (pattern_seed)
         self.reuses = 0  # solves that kept the last one's pattern
+
+    @property
+    def options(self) -> dict:
+        """The options this solver sets under its prefix during its calls, over the database's (names
+        without the prefix, as ``options`` is given: ``LinearSolver(comm, prefix, s.options)`` is another)."""
+        return {name[len(self.prefix):]: value for name, value in self._own_options.items()}
 
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None = None) -> PETSc.Vec:
         """Solve ``A[free, free] x[free] = b[free]``; ``x`` is zero on the other dofs.
@@ -320,19 +329,8 @@ class LinearSolver:
         """The KSP's solve, with the Schur complement's LU package chosen by ``size`` (exact Schur
         solve); its converged reason."""
         chosen = schur_factor_options(size) if self.exact_schur else {}
-        opts = PETSc.Options()
-        before = {name: opts.getString(self.prefix + name) if opts.hasName(self.prefix + name) else None
-                  for name in chosen}
-        for name, value in chosen.items():  # read while the split sets up, then as they were
-            opts[self.prefix + name] = value
-        try:
-            self.ksp.solve(b, x)
-        finally:
-            for name, value in before.items():
-                if value is None:
-                    opts.delValue(self.prefix + name)
-                else:
-                    opts[self.prefix + name] = value
+        with _options_in_force({**self._own_options, **{self.prefix + name: v for name, v in chosen.items()}}):
+            self.ksp.solve(b, x)  # the split reads its blocks' options while it sets up
         return self.ksp.getConvergedReason()
 
     def pattern_seed(self) -> list[list[int]] | None:
@@ -436,6 +434,24 @@ def _selfp(nest: PETSc.Mat) -> PETSc.Mat:
     complement.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
     complement.axpy(1.0, A11, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
     return complement
+
+
+@contextlib.contextmanager
+def _options_in_force(values: dict):
+    """PETSc options (full names) set in the database for the duration of a call, then as they were."""
+    opts = PETSc.Options()
+    present = opts.getAll()  # reading values with getString would mark them used
+    before = {name: present.get(name) for name in values}
+    for name, value in values.items():
+        opts[name] = value
+    try:
+        yield
+    finally:
+        for name, value in before.items():
+            if value is None:
+                opts.delValue(name)
+            else:
+                opts[name] = value
 
 
 def _ksp_from_options(comm, prefix: str) -> PETSc.KSP:

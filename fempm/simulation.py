@@ -53,6 +53,7 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
         petsc = linear.iterative_options(sv.petsc)
     linear.set_options(petsc)
     linear.check_options(comm, list(sv.petsc), FIELDS)
+    linear.set_options({})  # the solver holds them (Controls): none left behind for another solver
     basis, particles = build_material(scene, comm)
     physics = Physics(viscosity=fluid.viscosity, gravity=scene.gravity, walls=asdict(scene.walls))
     scheme = Scheme(dt=scene.time.dt, courant=scene.time.courant, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,

@@ -100,7 +100,7 @@ def test_schur_factor_follows_the_size(monkeypatch):
 
 def test_large_schur_complement_is_solved_by_multigrid(monkeypatch):
     """Above LARGE_SYSTEM free dofs S is solved by a multigrid cycle, to the same solution as LU;
-    the options database keeps S's LU for the next, smaller system."""
+    the solver keeps S's LU for the next, smaller system, and leaves no option in PETSc's database."""
     comm = MPI.COMM_SELF
     lu, _ = _one_step(comm, petsc=linear.DIRECT)
     monkeypatch.setattr(linear, "LARGE_SYSTEM", 0)
@@ -113,7 +113,8 @@ def test_large_schur_complement_is_solved_by_multigrid(monkeypatch):
     assert _relative_difference(cycled, lu, comm) < 3e-8  # measured 1.5e-8 (3.6e-9 before PSPG's displacement in a
     # step was bounded, the smaller tau conditioning this first step's system worse; 1.3e-10 with tau's larger
     # T = max(dt, ...): the first step's system is worse conditioned; the iterative solver: 8.4e-10)
-    assert PETSc.Options().getString(solver.prefix + "fieldsplit_p_pc_type") == "lu"
+    assert solver.options["fieldsplit_p_pc_type"] == "lu"  # S's LU kept for a smaller system
+    assert not any(name.startswith(solver.prefix) for name in PETSc.Options().getAll())  # none left behind
 
 
 def test_failed_schur_iteration_is_redone_by_lu():
@@ -186,8 +187,36 @@ def test_iterative_split_takes_its_blocks_from_the_matrix_and_keeps_them_for_new
     A.scale(2.0)
     twice = ls.solve(A, b, free).copy()
     assert ls.reuses == kept + 2
-    fresh = linear.LinearSolver(comm, "fempm_", fields=solver.system.space.fields).solve(A, b, free)
+    fresh = linear.LinearSolver(comm, "fempm_", ls.options, fields=solver.system.space.fields).solve(A, b, free)
     # measured 2.3e-14 on one rank, 0 on two
     assert _norm(twice.getArray() - fresh.getArray(), comm) <= 1e-12 * _norm(fresh.getArray(), comm)
     half = once.getArray() / 2
     assert _norm(twice.getArray() - half, comm) <= 1e-12 * _norm(half, comm)  # measured 6.6e-16 and 0
+
+
+@pytest.mark.mpi
+def test_a_solvers_options_are_its_own():
+    """Two solvers under one prefix: the second, given no options, is the default and not the first's
+    iterative one, and the first still solves with its own after the second was made (a solver's options
+    are in PETSc's database only during its calls; left there, an iterative run's options once turned
+    every later default solver of the process iterative)."""
+    comm = MPI.COMM_WORLD
+    scene = load_scene(SCENE)
+    solver = build_solver(replace(scene, solver=replace(scene.solver, linear="iterative")), comm)
+    solver.step()
+    ls = solver.system.linear_solver
+    A, free = solver.region.matrix, ls._previous[1]
+    b = A.createVecLeft()
+    b.setArray(np.random.default_rng(comm.rank).standard_normal(b.getLocalSize()))
+    default = linear.LinearSolver(comm, "fempm_", fields=solver.system.space.fields)
+    assert default.options == linear.direct_options(comm, solver.system.space.fields)
+    exact = default.solve(A, b, free).copy()
+    iterated = ls.solve(A, b, free)
+    assert ls.ksp.getType() == "gmres" and ls.ksp.getIterationNumber() > 2  # measured 49 on one rank, 50 on two
+    assert ls.ksp.getPC().getFieldSplitSubKSP()[1].getPC().getType() in ("gamg", "hypre")
+    if comm.size == 1:
+        assert default.ksp.getType() == "fgmres" and default.ksp.getIterationNumber() <= 6  # measured 4
+    else:
+        assert default.ksp.getType() == "preonly"
+    # measured 2.2e-13 on one rank, 6.5e-14 on two: GMRES to 1e-13 against the exact solve
+    assert _norm(iterated.getArray() - exact.getArray(), comm) <= 1e-12 * _norm(exact.getArray(), comm)
