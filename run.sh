@@ -3,7 +3,8 @@
 # if it is missing, installs fempm into it, then runs the main job or the tests.
 #
 #   ./run.sh demo [flags]         the dam break of the seed (results/dambreak/)
-#   ./run.sh test [pytest flags]     the whole test suite (serial, then 2 MPI ranks inside it)
+#   ./run.sh test [pytest flags]     the whole test suite, its files shared by up to 4 processes
+#                                    (pytest-xdist; -n 0: in one), the mpi-marked tests again on 2 ranks
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -42,6 +43,8 @@ job=${1:-}
 shift || true
 case "$job" in
   demo)     setup; exec python demos/dambreak.py "$@" ;;
-  test)     setup; exec python -m pytest "$@" ;;
+  test)     setup
+            cores=$(nproc 2>/dev/null || echo 1)
+            exec python -m pytest -n "$(( cores < 4 ? cores : 4 ))" --dist loadfile "$@" ;;
   *) echo "usage: ./run.sh demo [flags] | ./run.sh test [pytest flags]" >&2; exit 2 ;;
 esac
