@@ -440,18 +440,18 @@ def _selfp(nest: PETSc.Mat) -> PETSc.Mat:
 def _options_in_force(values: dict):
     """PETSc options (full names) set in the database for the duration of a call, then as they were."""
     opts = PETSc.Options()
-    present = opts.getAll()  # reading values with getString would mark them used
-    before = {name: present.get(name) for name in values}
+    present = opts.getAll()  # reading values with getString would mark them used (a flag's value: None)
+    before = {name: present[name] for name in values if name in present}
     for name, value in values.items():
         opts[name] = value
     try:
         yield
     finally:
-        for name, value in before.items():
-            if value is None:
-                opts.delValue(name)
+        for name in values:
+            if name in before:
+                opts[name] = "" if before[name] is None else before[name]
             else:
-                opts[name] = value
+                opts.delValue(name)
 
 
 def _ksp_from_options(comm, prefix: str) -> PETSc.KSP:
