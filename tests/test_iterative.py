@@ -213,12 +213,14 @@ def test_a_solvers_options_are_its_own():
     opts = PETSc.Options()
     opts["fempm_ksp_max_it"] = 500  # a user's options under the prefix: the solvers' own hold during their calls
     opts.insertString("-fempm_a_flag_nothing_reads")
-    exact = default.solve(A, b, free).copy()
-    iterated = ls.solve(A, b, free)
-    assert {k: v for k, v in opts.getAll().items() if k.startswith("fempm_")} == {"fempm_ksp_max_it": "500",
-                                                                                "fempm_a_flag_nothing_reads": None}
-    opts.delValue("fempm_ksp_max_it")
-    opts.delValue("fempm_a_flag_nothing_reads")
+    try:
+        exact = default.solve(A, b, free).copy()
+        iterated = ls.solve(A, b, free)
+        assert {k: v for k, v in opts.getAll().items() if k.startswith("fempm_")} == {
+            "fempm_ksp_max_it": "500", "fempm_a_flag_nothing_reads": None}
+    finally:  # not left for the next test of this process
+        opts.delValue("fempm_ksp_max_it")
+        opts.delValue("fempm_a_flag_nothing_reads")
     assert ls.ksp.getType() == "gmres" and ls.ksp.getIterationNumber() > 2  # measured 49 on one rank, 50 on two
     assert ls.ksp.getPC().getFieldSplitSubKSP()[1].getPC().getType() in ("gamg", "hypre")
     if comm.size == 1:
