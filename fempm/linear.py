@@ -70,10 +70,10 @@ _DIRECT_PARALLEL = {"ksp_type": "preonly", "pc_type": "redundant", "redundant_pc
 _AMG = ({"pc_type": "hypre", "pc_hypre_type": "boomeramg"} if PETSc.Sys.hasExternalPackage("hypre")
         else {"pc_type": "gamg"})
 #: GAMG on the pressure: a drop threshold, since the B-spline stencil is wide; its first coarsening
-#: aggressive without squaring the graph (that wide stencil's square was half the set-up); two SOR sweeps
-#: as each level's smoother (fewer iterations than Chebyshev's, and no eigenvalue estimates to set up)
+#: aggressive without squaring the graph (that wide stencil's square was half the set-up); one symmetric
+#: SOR sweep as each level's smoother (fewer iterations than Chebyshev's, no eigenvalue estimates to set up)
 _PRESSURE_GAMG = {"pc_gamg_threshold": 0.02, "pc_gamg_aggressive_square_graph": "false",
-                  "mg_levels_ksp_type": "richardson", "mg_levels_pc_type": "sor"}
+                  "mg_levels_ksp_type": "richardson", "mg_levels_pc_type": "sor", "mg_levels_ksp_max_it": 1}
 #: a pressure block (or Schur complement) by one V-cycle of algebraic multigrid
 _PRESSURE_AMG = {f"fieldsplit_p_{k}": v
                  for k, v in {**_AMG, **(_PRESSURE_GAMG if _AMG["pc_type"] == "gamg" else {})}.items()}
