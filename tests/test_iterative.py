@@ -51,9 +51,10 @@ def test_iterative_solver_reproduces_the_direct_step():
     assert ksp.getPCSide() == PETSc.PC.Side.RIGHT  # the true residual, as FGMRES's (every block's solve is fixed)
     assert lu_solver.ksp.getType() == "preonly"
     assert _norm(lu["u"], comm) > 0
-    # measured 3.6e-9 (one rank), 8.6e-9 (two; 8.4e-10 with PSPG's tau following the step: the first step, at the
-    # scene's largest dt, is worse conditioned now)
-    assert _relative_difference(iterative, lu, comm) <= 1.5e-8
+    # measured 8.4e-9 (one rank), 1.7e-8 (two) with the pressure multigrid's SOR sweeps; 1.5e-8 on both with its
+    # Chebyshev smoother before (the first step, at the scene's largest dt, is the worst conditioned): where in the
+    # ball of rtol 1e-13 the iteration stops, times the system's condition
+    assert _relative_difference(iterative, lu, comm) <= 2.5e-8
 
 
 @pytest.mark.mpi
