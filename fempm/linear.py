@@ -422,6 +422,11 @@ class LinearSolver:
         return self._fallback.getConvergedReason()
 
 
+#: the ``selfp`` product on several ranks: each rank multiplies its rows by a sequential gathered copy of the
+#: other factor's rows they reach (PETSc's ``seqmpi``), in less time than the default's merged scalable product
+_PARALLEL_PRODUCT = {"matmatmult_via": "seqmpi"}
+
+
 def _selfp(nest: PETSc.Mat) -> PETSc.Mat:
     """PETSc's ``selfp`` Schur complement ``A11 - A10 diag(A00)^-1 A01`` of a 2 x 2 ``MATNEST``, with A11
     added into the product's pattern, which holds all of its couplings in a step's system (any other is
@@ -431,7 +436,8 @@ def _selfp(nest: PETSc.Mat) -> PETSc.Mat:
     inverse.reciprocal()
     scaled = A01.duplicate(copy=True)
     scaled.diagonalScale(L=inverse)
-    complement = A10.matMult(scaled)
+    with _options_in_force(_PARALLEL_PRODUCT if nest.getComm().getSize() > 1 else {}):
+        complement = A10.matMult(scaled)
     scaled.destroy()
     inverse.destroy()
     complement.scale(-1.0)
