@@ -29,8 +29,8 @@ them. Two sets of options are named here:
   algebraic multigrid (hypre BoomerAMG if this PETSc has it, else PETSc's GAMG with a drop
   threshold, as the B-spline stencil is wide, and an SOR sweep on each level), the velocity block
   by its diagonal: it is the lumped mass over ``beta dt^2`` plus a viscous part smaller by
-  ``~ 2 mu dt / (rho h^2)``, for which Jacobi does as well as a multigrid cycle at a fraction of the cost. The relative tolerance is
-  tight enough that the solution agrees with the direct one to about 1e-8
+  ``~ 2 mu dt / (rho h^2)``, for which Jacobi does as well as a multigrid cycle at a fraction of
+  the cost. The relative tolerance is tight enough that the solution agrees with the direct one to about 1e-8
   (``tests/test_iterative.py``); GMRES restarts rarely, since splashes raise the iteration count. Very viscous flows may want
   ``fieldsplit_u_pc_type = "gamg"``; an inner Krylov solve of a block makes the outer solver FGMRES
   (:func:`iterative_options`).
