@@ -16,6 +16,7 @@ interpolated to the particles rippled the dam break's upper wall gauge more.
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from fempm.space import GridFunction, Space
@@ -43,10 +44,9 @@ class DeepWater:
     def interior(self, phi: np.ndarray) -> np.ndarray:
         """Which local functions have only deep cells in their support, given ``phi`` on the local
         functions (owned and ghost, up to date; collective)."""
-        centre = np.einsum("cl,cl->c", self.centre_values, phi[self.cell_functions])
         shallow = self._shallow
         shallow.values[:] = 0.0
-        np.add.at(shallow.values[:, 0], self.cell_functions[centre < DEEP].ravel(), 1.0)
+        _count_shallow_cells(self.centre_values, self.cell_functions, phi, shallow.values[:, 0])
         shallow.scatter_reverse_add()
         shallow.scatter_forward()
         return shallow.values[:, 0] == 0
@@ -54,3 +54,16 @@ class DeepWater:
     def __call__(self, phi: np.ndarray) -> np.ndarray:
         """``deep`` on the local functions: 1.0 on the interior ones, else 0.0 (collective)."""
         return self.interior(phi).astype(np.float64)
+
+
+@numba.njit(cache=True)
+def _count_shallow_cells(centre_values, cell_functions, phi, counts):
+    """Add 1 to ``counts`` at every function of each cell whose ``phi`` at the centre,
+    ``sum_l N_l(centre) phi_l``, is below :data:`DEEP`."""
+    for c in range(cell_functions.shape[0]):
+        centre = 0.0
+        for l in range(cell_functions.shape[1]):
+            centre += centre_values[c, l] * phi[cell_functions[c, l]]
+        if centre < DEEP:
+            for l in range(cell_functions.shape[1]):
+                counts[cell_functions[c, l]] += 1.0
