@@ -106,13 +106,15 @@ class Stepper:
         until = None if until is None or until == float("inf") else float(until)
         dt = self._size(until)
         saved = self.save() if self.control else None
+        tried = []
         for attempt in range(self.control.retries + 1 if self.control else 1):
             try:
                 self.advance(dt)
                 break
             except (SolveFailed, ParticleOutsideGridError) as failure:
+                tried.append(dt)
                 if not self.control or attempt == self.control.retries:
-                    raise SimulationDiverged(self.time + dt, self.steps + 1, str(failure)) from None
+                    raise SimulationDiverged(self.time + dt, self.steps + 1, str(failure) + _halvings(tried)) from None
                 self.retries.append((self.time, self.steps + 1, dt, str(failure)))
                 self.restore(saved)
                 dt /= 2
@@ -175,3 +177,12 @@ class Stepper:
     def restore(self, saved):
         """Undo a failed step."""
         raise NotImplementedError
+
+
+def _halvings(tried: list[float]) -> str:
+    """What a failure's message adds when the step was halved before it: the sizes tried, since a
+    failure that halving does not cure is not the step's size alone."""
+    if len(tried) < 2:
+        return ""
+    sizes = ", ".join(f"{dt:.3g}" for dt in tried)
+    return f" (the step failed at {sizes} s: halving it {len(tried) - 1} times did not help)"

@@ -63,8 +63,12 @@ def test_a_failed_step_is_retried_at_half_its_size_from_its_saved_state():
     assert s.dt == pytest.approx(0.0125) and s.x == pytest.approx(0.0125)  # 0.05 -> 0.025 -> 0.0125
     assert [r[2] for r in s.retries] == pytest.approx([0.05, 0.025]) and "too large" in s.retries[0][3]
     hopeless = Ballistic(speed=1.0, control=StepControl(courant=0.5, largest=1.0, retries=2), breaks=0.001)
-    with pytest.raises(SimulationDiverged, match="step 1"):
+    with pytest.raises(SimulationDiverged, match=r"step 1\): dt = 0.0125 is too large \(the step failed at 0.05, "
+                                                 r"0.025, 0.0125 s: halving it 2 times did not help\)$"):
         hopeless.step()
+    fixed = Ballistic(speed=1.0, control=StepControl(courant=0.5, largest=1.0, retries=0), breaks=0.001)
+    with pytest.raises(SimulationDiverged, match=r"is too large$"):  # no retries: the failure as it came
+        fixed.step()
 
 
 def test_still_water_takes_its_step_from_the_pressure_speed():
