@@ -82,10 +82,10 @@ class EnergyWatch:
         if largest > self.speed_limit:
             raise SolveFailed(f"energy growth: a particle reached {largest:.3g} m/s, above {self.speed_limit:.3g} "
                               f"m/s ({self.FALL_FACTOR:g} times a fall from the top of the box, "
-                              f"{self.fall_speed:.3g} m/s, with {self.START_FACTOR:g} times the fastest start); "
-                              f"the step is too large for the flow ({largest * dt / h:.1f} cells per step)")
+                              f"{self.fall_speed:.3g} m/s, with {self.START_FACTOR:g} times the fastest start), "
+                              f"as a step too large for the flow does ({largest * dt / h:.1f} cells per step)")
         if gain > self.gain_limit:
             grid = self.particles.grid
             raise SolveFailed(f"energy growth: the mechanical energy rose by {100 * gain:.0f} % of its start, "
-                              f"which gravity and walls at rest cannot give; the step is too large for the flow "
+                              f"which gravity and walls at rest cannot give, as a step too large for the flow does "
                               f"(fastest particle {largest:.3g} m/s, {largest * dt / grid.h:.1f} cells per step)")
