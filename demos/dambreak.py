@@ -155,7 +155,8 @@ recorder = simulation.recorder_for(scene, solver, {"scheme": "implicit"})
 #    $v_n$, $a_n$ and the smoothed density $\tilde\rho$; basis functions that barely touch
 #    water are left out of the solve.
 # 2. **Newton** (`system.solve`): $R(\Delta u, p)$ and its Jacobian assembled at the particles,
-#    a MUMPS LU solve on the free dofs ($R$ is affine in the unknowns: one iteration).
+#    one exact linear solve on the free dofs ($R$ is affine in the unknowns: one iteration; on one
+#    rank the pressure's Schur complement, factored, `fempm.linear`).
 # 3. **G2P** (`update`): particle velocity and acceleration by FLIP increments blended with PIC
 #    at a share of 30/s (`pic_rate` $\Delta t$ per step), then a share of 300/s of the particles'
 #    noise alone (`noise_rate`, `fempm.transfer.NoiseFilter`), their affine parts $C_p$ by APIC
@@ -181,9 +182,10 @@ while solver.time < end * (1 - 1e-9):
     except SimulationDiverged as e:
         status, cause = "stopped", str(e)
         break
+    step_seconds = time.perf_counter() - step_start  # the step alone, without the files written after it
     recorder.record()
     if progress:
-        progress.update(solver.time, time.perf_counter() - step_start)
+        progress.update(solver.time, step_seconds)
 if progress:
     progress.close()
 summary = recorder.close(status, cause, time.perf_counter() - start)
