@@ -129,6 +129,20 @@ def test_shifts_that_add_no_angular_momentum_keep_the_gresho_vortex_s_angular_mo
     assert abs(r["L"]) < 0.0003  # measured -0.019 % (-0.124 %)
 
 
+@pytest.mark.xfail(strict=True, reason="an open defect: from t ~ 0.3 the vortex's core thins, PSPG turning the particle "
+                   "quadrature's pressure error into a source at the centre, and once below fempm.density.DEEP the "
+                   "surface-aware correction takes the void for a free surface and leaves it open (the smoothed density "
+                   "at the centre 0.911 at t = 0.5, 0.646 at t = 1, 0.419 at t = 3; without PSPG, or with the pressure's "
+                   "terms at Gauss points, the core stays filled: tests/test_pressure_points.py; README, known limits)")
+def test_the_gresho_vortex_keeps_its_core_filled():
+    """64², max u dt/h = 0.4, t = 1, the shipped particle handling: the smoothed density at the vortex's
+    centre stays within 10 % of the water's."""
+    r = vortices.gresho("affine-FLIP", 64, 0.4 / 64, 1.0, shifting=vortices.SHIFTING, surface_aware=True)
+    print(r)
+    assert r["status"] == "completed"
+    assert r["core"] > 0.9
+
+
 def test_column_stays_at_rest_with_affine_flip():
     """The dam-break column held 0.5 s (dt 1 ms): volume within 0.2 %, speeds below 1e-3 m/s."""
     r = column.rest("affine-FLIP", 0.5)

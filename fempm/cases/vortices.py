@@ -40,7 +40,7 @@ from fempm.implicit import ImplicitSolver
 from fempm.options import Physics, Scheme
 from fempm.particles import Particles, Rectangle
 from fempm.quadrature import GaussForm
-from fempm.verification import advance
+from fempm.verification import advance, sample
 
 __all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "TURNING", "VARIANTS", "WHOLE_SHARE", "angular_momentum",
            "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "largest_change",
@@ -239,7 +239,8 @@ def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "
     relative changes of kinetic energy (``ke``) and angular momentum (``L``) at the end, the angular momentum's
     change of largest magnitude after any step (``L_largest``), the u_theta error at the end
     (``profile``) and at the start (``profile0``), the largest smoothed density over the water's at the
-    end (``crowding``, eq. 2: where particles gather); ``solver_type``, ``alpha``, ``surface_aware``, ``pic``: see
+    end (``crowding``, eq. 2: where particles gather) and the smoothed density at the vortex's centre
+    (``core``: below 1 where the core has thinned); ``solver_type``, ``alpha``, ``surface_aware``, ``pic``: see
     :func:`box_solver`."""
     solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, alpha=alpha, per_cell=per_cell,
                         shifting=shifting, solver_type=solver_type, surface_aware=surface_aware, pic=pic)
@@ -247,11 +248,13 @@ def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "
     history = []
     run = advance(solver, end, lambda s: history.append(angular_momentum(s)))
     final = gresho_measures(solver)
-    crowding = solver.grid.comm.allreduce(float(solver.system.fields["smoothed_density"].values.max(initial=0.0)),
-                                          op=MPI.MAX) / RHO
+    density = solver.system.fields["smoothed_density"]
+    crowding = solver.grid.comm.allreduce(float(density.values.max(initial=0.0)), op=MPI.MAX) / RHO
+    core = float(sample(density, CENTRE[None])[0, 0]) / RHO
     return {"variant": variant, "cells": cells, "dt": dt, "ke": final["ke"] / start["ke"] - 1,
             "L": final["L"] / start["L"] - 1, "L_largest": largest_change(history, start["L"]),
-            "profile": final["profile"], "profile0": start["profile"], "crowding": crowding, "status": run.status,
+            "profile": final["profile"], "profile0": start["profile"], "crowding": crowding, "core": core,
+            "status": run.status,
             "cause": run.cause, "t": run.time, "wall": run.wall}
 
 
