@@ -254,8 +254,7 @@ def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "
     return {"variant": variant, "cells": cells, "dt": dt, "ke": final["ke"] / start["ke"] - 1,
             "L": final["L"] / start["L"] - 1, "L_largest": largest_change(history, start["L"]),
             "profile": final["profile"], "profile0": start["profile"], "crowding": crowding, "core": core,
-            "status": run.status,
-            "cause": run.cause, "t": run.time, "wall": run.wall}
+            "status": run.status, "cause": run.cause, "t": run.time, "wall": run.wall}
 
 
 # -- FEM-only reference -----------------------------------------------------------------------------
