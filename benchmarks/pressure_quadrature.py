@@ -22,7 +22,11 @@ stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weighti
   water) everywhere, or deep in the water only (blended by the grid's deep functions), or there only
   below 0.9; and ``conserved``, the
   offset ``c`` of ``clip(2 rho~ / rho - c, 0, 1)`` chosen each step (within 1/4 of 1/2) so that the
-  wet Gauss points hold the particles' volume.
+  wet Gauss points hold the particles' volume;
+* ``blended``: the terms split between the Gauss points, with a weight ``D`` rising from 0 to 1 as the smoothed
+  fraction rises over the range named, and the particles, with ``1 - D``: the pressure's work, gravity and the
+  continuity, or the continuity alone (the momentum balance whole at the particles; forms:
+  ``benchmarks/forms/blended_pressure.py``).
 
 Each against the shipped particle quadrature (``particles``) on the dam break's front (to
 t = 0.28 s, against interFoam 160²), its CPU time per step (the least of three blocks of 100), its right-wall gauges (``benchmarks/wall_pressure.py``), Taylor-Green's loss (nu = 1e-6, U dt / h = 0.4, to t = 0.25,
@@ -65,6 +69,7 @@ from fempm.simulation import build_solver
 from fempm.verification import advance
 
 FORMS = Path(__file__).resolve().parent / "forms" / "gauss_pressure.py"
+BLENDED_FORMS = FORMS.with_name("blended_pressure.py")
 RESULTS = pages.ROOT / "docs" / "pressure-quadrature.json"
 PAGE = pages.ROOT / "docs" / "pressure-quadrature.md"
 
@@ -87,6 +92,17 @@ class Weighting:
     conserved: bool = False
 
 
+@dataclasses.dataclass(frozen=True)
+class Blend:
+    """The pressure's terms split between the Gauss points (weight ``D``, a ramp of the smoothed fraction from 0
+    at ``low`` to 1 at ``high``) and the particles (``1 - D``): the continuity, and with ``all_terms`` the
+    pressure's work with gravity too (``benchmarks/forms/blended_pressure.py``)."""
+
+    low: float
+    high: float
+    all_terms: bool = True
+
+
 #: the shipped option, ``Scheme.pressure_quadrature = "gauss"`` (``fempm.pressure_points``, ``forms/gauss_pressure.py``)
 SHIPPED = "shipped"
 WEIGHTINGS = {
@@ -102,6 +118,9 @@ WEIGHTINGS = {
                                                              thinned_below=0.9),
     "sharp, conserved": Weighting("smooth", sharpness=2.0, corrected=True, conserved=True),
     "cells": Weighting("cells"),
+    "blended 0.75-0.95": Blend(0.75, 0.95),
+    "blended 0.75-0.95, continuity alone": Blend(0.75, 0.95, all_terms=False),
+    "blended 0.5-0.75, continuity alone": Blend(0.5, 0.75, all_terms=False),
 }
 #: how far a conserved weighting's offset may move from ``(sharpness - 1) / 2``
 OFFSET_RANGE = 0.25
@@ -194,6 +213,26 @@ class GaussPressure(ImplicitSolver):
         return (lo + hi) / 2
 
 
+class BlendedPressure(ImplicitSolver):
+    """The implicit MPM with the pressure's terms blended between Gauss points and particles (:class:`Blend`)."""
+
+    def __init__(self, blend: Blend, basis, particles, physics=None, scheme=None, controls=None):
+        self.fields = {"blend_low": blend.low, "blend_high": blend.high, "blend_terms": float(blend.all_terms)}
+        for name, value in self.fields.items():
+            if name not in particles.fields:
+                particles.add_field(name)
+            particles[name][:] = value
+        super().__init__(basis, particles, physics, dataclasses.replace(
+            scheme or Scheme(), forms=str(BLENDED_FORMS), pressure_quadrature="gauss"), controls)
+
+    def quadrature_points(self) -> StepPoints:
+        """The particles and the Gauss points of the cells where ``D`` may be above zero (a function's
+        smoothed fraction above ``blend_low``), which carry the blend's fields."""
+        fraction = self.system.fields["smoothed_density"].values[:, 0] / self._reference_density
+        gp = self._gauss_points
+        return gp.points(self.particles, gp.wet_cells(fraction, self.fields["blend_low"]), lambda chosen: self.fields)
+
+
 def solver_type(weighting: str, surface_aware: bool = False):
     """The solver class (or factory) of a weighting, as the cases take it; ``surface_aware``: with the shipped
     scene's volume correction (``Scheme.surface_aware``, ``fempm.density``) instead of the case's."""
@@ -223,7 +262,7 @@ def _maker(w):
             return ImplicitSolver(basis, particles, physics,
                                   dataclasses.replace(scheme or Scheme(), pressure_quadrature="gauss"), controls)
         return shipped
-    return functools.partial(GaussPressure, w)
+    return functools.partial(BlendedPressure if isinstance(w, Blend) else GaussPressure, w)
 
 
 # -- the cases: each returns a dict of its measures ----------------------------------------------
