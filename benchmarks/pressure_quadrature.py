@@ -126,6 +126,14 @@ WEIGHTINGS = {
 OFFSET_RANGE = 0.25
 
 
+def _set_fields(particles, fields: dict):
+    """Every particle takes these fields' values (the fields added where missing): the study's forms read them."""
+    for name, value in fields.items():
+        if name not in particles.fields:
+            particles.add_field(name)
+        particles[name][:] = value
+
+
 class GaussPressure(ImplicitSolver):
     """The implicit MPM with the pressure's terms at Gauss points weighted by ``weighting`` (module)."""
 
@@ -135,10 +143,7 @@ class GaussPressure(ImplicitSolver):
         fields = {"wet": 0.0, "sharpness": weighting.sharpness,
                   "offset": (weighting.sharpness - 1) / 2,
                   "correction": float(weighting.corrected)}
-        for name, value in fields.items():
-            if name not in particles.fields:
-                particles.add_field(name)
-            particles[name][:] = value
+        _set_fields(particles, fields)
         super().__init__(basis, particles, physics, dataclasses.replace(
             scheme or Scheme(), forms=str(FORMS), pressure_quadrature="gauss"), controls)
 
@@ -218,10 +223,7 @@ class BlendedPressure(ImplicitSolver):
 
     def __init__(self, blend: Blend, basis, particles, physics=None, scheme=None, controls=None):
         self.fields = {"blend_low": blend.low, "blend_high": blend.high, "blend_terms": float(blend.all_terms)}
-        for name, value in self.fields.items():
-            if name not in particles.fields:
-                particles.add_field(name)
-            particles[name][:] = value
+        _set_fields(particles, self.fields)
         super().__init__(basis, particles, physics, dataclasses.replace(
             scheme or Scheme(), forms=str(BLENDED_FORMS), pressure_quadrature="gauss"), controls)
 
