@@ -3,7 +3,7 @@
 The particles are the step's quadrature points, and the open accuracy defects point at that
 quadrature of the pressure's terms: Taylor-Green's loss grows with the particles' disorder, so
 that it rises under refinement; a column at rest grows a mode in which corner particles pair
-under the hydrostatic pressure (README, "Measured"). Here the pressure's work, with gravity (which
+under the hydrostatic pressure (docs/notes-accuracy.md). Here the pressure's work, with gravity (which
 balances it at rest), and the continuity are integrated at the 3 x 3 Gauss points of the cells
 around the water, weighted by a share of water, and the particles keep the inertia, the viscous
 stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weightings

@@ -31,7 +31,7 @@ from fempm.pressure_points import SHARPNESS
 #: the share of water PSPG divides by is at least this (its correction is p grad(wet) / wet): a particle
 #: thrown clear of the water, where the share is near zero and steep, otherwise gets a correction as large
 #: as the pressure over a small fraction of a cell; with floors near zero the dam break's pressure blew up
-#: as its jets landed, at 1/4 the jet onto the obstacle's (README, the pressure-quadrature study)
+#: as its jets landed, at 1/4 the jet onto the obstacle's (docs/notes-accuracy.md, the Gauss points)
 WET_FLOOR = 0.5
 
 

@@ -133,7 +133,7 @@ def test_shifts_that_add_no_angular_momentum_keep_the_gresho_vortex_s_angular_mo
                    "quadrature's pressure error into a source at the centre, and once below fempm.density.DEEP the "
                    "surface-aware correction takes the void for a free surface and leaves it open (the smoothed density "
                    "at the centre 0.911 at t = 0.5, 0.646 at t = 1, 0.419 at t = 3; without PSPG, or with the pressure's "
-                   "terms at Gauss points, the core stays filled: tests/test_pressure_points.py; README, known limits)")
+                   "terms at Gauss points, the core stays filled: tests/test_pressure_points.py; docs/notes-accuracy.md)")
 def test_the_gresho_vortex_keeps_its_core_filled():
     """64², max u dt/h = 0.4, t = 1, the shipped particle handling: the smoothed density at the vortex's
     centre stays within 10 % of the water's."""

@@ -71,7 +71,7 @@ def test_dam_break_at_ten_times_the_seeds_step(full):
     # measured 1.875, 1.0, 0.0284 with G2P over the moved functions (2.040, 1.0, 0.0273 over all of them): the
     # fastest particle is a splash's, chaotic in the step: at 1/105 ... 1/90 s 1.93-2.04 and 0.025-0.033 (before
     # 1.82-2.23 and 0.025-0.053), while at 1/110 s a drop landing at 3.5 cells a step was thrown off at 29 m/s and
-    # the energy check stopped the run at 1.42 s (README, hard cases). FLIP/PIC: 2.713, 1.01225, 0.0845
+    # the energy check stopped the run at 1.42 s (README, departures table). FLIP/PIC: 2.713, 1.01225, 0.0845
     assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.037)
     # measured 3.356 (with tau's T = max(dt, ...) 2.936 (crowding only 2.918; before the crowding tolerance 4.088; start-configuration divergence 3.197)
     assert o.max_cfl > 2.8
