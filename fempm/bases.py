@@ -179,27 +179,33 @@ class Basis:
     @cached_property
     def integrals(self) -> np.ndarray:
         """``int N_i dx`` over the tank for every function, exact (Gauss; in a cut cell over its part)."""
-        pts, wts = np.polynomial.legendre.leggauss(self.degree + 1)
-        return self._integrals(0.5 * (pts + 1.0), 0.5 * wts)
+        return self.open_integrals(blocked=True)
 
-    def lattice_integrals(self, per_cell: int) -> np.ndarray:
-        """``int N_i dx`` by the rule of ``per_cell x per_cell`` particles at sub-cell centres.
+    def open_integrals(self, blocked: bool = False) -> np.ndarray:
+        """``int N_i dx`` over the cells no obstacle blocks (``blocked``: over all, :attr:`integrals`), exact."""
+        pts, wts = np.polynomial.legendre.leggauss(self.degree + 1)
+        return self._integrals(0.5 * (pts + 1.0), 0.5 * wts, blocked)
+
+    def lattice_integrals(self, per_cell: int, blocked: bool = True) -> np.ndarray:
+        """``int N_i dx`` by the rule of ``per_cell x per_cell`` particles at sub-cell centres (``blocked``:
+        over the obstacles' cells too, else over the open cells alone).
 
         What a uniformly seeded material gives for ``sum_p V_p N_i(x_p)`` over a full
         grid: with it the smoothed density of undisturbed seeded particles is exactly
         their density, also for the wall B-splines, which the midpoint rule does not
         integrate exactly. A cut cell has its own lattice, shrunk onto it, as seeding does.
         """
-        return self._integrals((np.arange(per_cell) + 0.5) / per_cell, np.full(per_cell, 1.0 / per_cell))
+        return self._integrals((np.arange(per_cell) + 0.5) / per_cell, np.full(per_cell, 1.0 / per_cell), blocked)
 
-    def _integrals(self, pts_1d, wts_1d) -> np.ndarray:
-        """``sum`` over cells and points of ``w N_i(xi)`` (a rule on the unit square, times ``h^2``;
-        in a cut cell shrunk onto it)."""
+    def _integrals(self, pts_1d, wts_1d, blocked: bool = True) -> np.ndarray:
+        """``sum`` over cells (``blocked``: the obstacles' too) and points of ``w N_i(xi)`` (a rule on the
+        unit square, times ``h^2``; in a cut cell shrunk onto it)."""
         grid = self.grid
         xi = np.stack(np.meshgrid(pts_1d, pts_1d, indexing="ij"), -1).reshape(-1, 2)
         w = np.outer(wts_1d, wts_1d).ravel() * grid.h**2
-        cells = np.repeat(np.arange(grid.num_cells), len(w))
-        xi, w = np.tile(xi, (grid.num_cells, 1)), np.tile(w, grid.num_cells)
+        chosen = np.arange(grid.num_cells) if blocked else np.flatnonzero(~grid.blocked)
+        cells = np.repeat(chosen, len(w))
+        xi, w = np.tile(xi, (len(chosen), 1)), np.tile(w, len(chosen))
         if grid.cut:
             width = grid.cell_sizes(cells) / grid.h  # 1, or the cut's width in cells
             xi, w = xi * width, w * width.prod(axis=1)

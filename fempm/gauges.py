@@ -15,11 +15,13 @@ evaluations at points fixed once:
   ``phi < 1/2`` (:data:`DRY_FRACTION`; outside the water's half-level set, as a VOF code's
   ``alpha = 1/2``) reads **NaN**: the B-spline pressure reaches past the water, so a dry point
   would otherwise read a number. ``phi`` is taken at the point moved to at least half a cell
-  inside the walls: a particle stands for a small square around it, and where water is
-  stretched along a wall the particles leave a gap of up to half a cell between themselves and
-  the wall although the water is there;
+  inside the walls and off the obstacles' faces (:func:`off_the_walls`): a particle stands for a
+  small square around it, and where water is stretched along a wall the particles leave a gap of
+  up to half a cell between themselves and the wall although the water is there; and ``int N_i dx``
+  counts an obstacle's cells, where no particle goes, so that on its face ``phi`` of still water is
+  about 1/2;
 * :class:`LevelGauge` reads the depth of water along the vertical line ``x`` (moved to at least
-  half a cell from the side walls, likewise), ``int phi(x, y) dy`` from the grid's bottom to its
+  half a cell from the side walls and the obstacles' faces, likewise), ``int phi(x, y) dy`` from the grid's bottom to its
   top (as OpenFOAM's ``interfaceHeight`` integrates ``alpha``: robust to the particle spacing; a
   splash above the surface adds its own thickness). A dry line reads 0.
 """
@@ -34,11 +36,13 @@ from fempm import transfer
 from fempm.errors import InputError
 from fempm.space import GridFunction, Space
 
-__all__ = ["DRY_FRACTION", "LevelGauge", "PressureGauge", "Sampler", "UNITS", "WetFraction", "sample",
-           "wet_fraction"]
+__all__ = ["DRY_FRACTION", "LevelGauge", "PressureGauge", "Sampler", "UNITS", "WetFraction", "inside_obstacles",
+           "off_the_walls", "sample", "wet_fraction"]
 
 #: Points whose wet fraction is below this are dry (pressure gauges read NaN there).
 DRY_FRACTION = 0.5
+#: A point this close to a cell's edge (in cells) touches the cell beyond it too.
+_EDGE = 1e-9
 #: The unit of each kind's reading.
 UNITS = {"pressure": "Pa", "level": "m"}
 
@@ -80,9 +84,48 @@ class WetFraction:
 
     def __call__(self, particles) -> GridFunction:
         """:func:`wet_fraction` now (collective)."""
-        if self._integrals is None:
-            self._integrals = transfer.density_normalisation(self.basis, particles)
+        if self._integrals is None:  # over the open cells: 1 in water at rest beside an obstacle too
+            integrals = transfer.density_normalisation(self.basis, particles, blocked=False)
+            self._integrals = np.where(integrals > 0, integrals, np.inf)  # a function inside an obstacle: 0
         return wet_fraction(particles, self._integrals, self.field)
+
+
+def _blocked_near(grid, u: np.ndarray, axis: int, shift: float) -> np.ndarray:
+    """Whether the cell at ``u + shift`` along ``axis`` (``u``: points in cells from the grid's lower corner)
+    is an obstacle's."""
+    ij = np.floor(u + shift * np.eye(2)[axis]).astype(np.int64)
+    ij = np.clip(ij, 0, np.array([grid.nx, grid.ny]) - 1)
+    return grid.blocked[ij[:, 0] + grid.nx * ij[:, 1]]
+
+
+def inside_obstacles(grid, points: np.ndarray) -> np.ndarray:
+    """Whether each point lies inside an obstacle: every cell it touches (to round-off) is blocked."""
+    u = (np.asarray(points, dtype=float).reshape(-1, 2) - grid.lower) / grid.h
+    inside = np.ones(len(u), dtype=bool)
+    for axis in (0, 1):
+        inside &= _blocked_near(grid, u, axis, -_EDGE) & _blocked_near(grid, u, axis, _EDGE)
+    return inside
+
+
+def off_the_walls(grid, points: np.ndarray, axes=(0, 1)) -> np.ndarray:
+    """Where the wet fraction at ``points`` ``(n, 2)`` is read: moved along ``axes`` to at least half a
+    cell inside the tank's walls, then, axis by axis, to half a cell off an obstacle's face that lies
+    within half a cell (into the open cell beside it; a gap one cell wide: its middle). Points inside an
+    obstacle stay."""
+    h = grid.h
+    out = np.array(points, dtype=float).reshape(-1, 2)
+    for axis in axes:
+        out[:, axis] = np.clip(out[:, axis], grid.lower[axis] + h / 2, grid.upper[axis] - h / 2)
+    if not grid.blocked.any():
+        return out
+    inside = inside_obstacles(grid, out)
+    for axis in axes:
+        u = (out - grid.lower) / h
+        below, above = _blocked_near(grid, u, axis, -0.5), _blocked_near(grid, u, axis, 0.5)
+        k_below, k_above = np.floor(u[:, axis] - 0.5), np.floor(u[:, axis] + 0.5)
+        moved = np.where(below, k_below + 1.5, np.where(above, k_above - 0.5, u[:, axis]))
+        out[:, axis] = np.where(inside, out[:, axis], grid.lower[axis] + h * moved)
+    return out
 
 
 class _Points:
@@ -132,15 +175,18 @@ class Sampler:
         self._wet = WetFraction(basis)
         self._pressure = [g for g in self.gauges if isinstance(g, PressureGauge)]
         self._level = [g for g in self.gauges if isinstance(g, LevelGauge)]
-        inner = (grid.lower + grid.h / 2, grid.upper - grid.h / 2)  # where phi is read, see the module
         points = np.array([g.point for g in self._pressure], dtype=float).reshape(-1, 2)
         self._points = _Points(grid, points)
-        self._wet_points = _Points(grid, np.clip(points, *inner))
+        self._wet_points = _Points(grid, off_the_walls(grid, points))  # where phi is read, see the module
         gauss, weights = np.polynomial.legendre.leggauss(level_points)
         rows = np.where(np.arange(grid.ny) == grid.ny - 1, grid.last[1], 1.0)[:, None]  # a cut top row's height
         y = grid.lower[1] + grid.h * (np.arange(grid.ny)[:, None] + rows * 0.5 * (gauss + 1.0)).ravel()
-        self._weights = (rows * 0.5 * weights * grid.h).ravel()
-        lines = [np.column_stack([np.full_like(y, np.clip(g.x, inner[0][0], inner[1][0])), y]) for g in self._level]
+        weights = (rows * 0.5 * weights * grid.h).ravel()
+        lines = [np.column_stack([np.full_like(y, g.x), y]) for g in self._level]
+        # a line's points inside an obstacle weigh nothing; the others read phi off the walls
+        self._weights = np.array([np.where(inside_obstacles(grid, line), 0.0, weights) for line in lines]
+                                 ).reshape(len(lines), len(y))
+        lines = [off_the_walls(grid, line, axes=(0,)) for line in lines]
         self._lines = _Points(grid, np.concatenate(lines) if lines else np.zeros((0, 2)))
         self._per_line = len(y)
         self.comm = grid.comm

@@ -304,20 +304,24 @@ class GridSeries(_Series):
         mine = (grid.owner[cells] == grid.comm.rank) & ~grid.outside(points)  # beyond a cut face: NaN
         self.nodes, self.cells = np.flatnonzero(mine), cells[mine]
         self.xi = np.column_stack([a[mine] / k - i[mine], b[mine] / k - j[mine]])
+        from fempm.gauges import inside_obstacles
+
+        self.solid = inside_obstacles(grid, points[mine])  # the pressure there is NaN when masked (write)
         self.comm = grid.comm
 
     def write(self, velocity, pressure, t: float, wet=None):
         """Write grid functions ``velocity`` (2 components) and ``pressure`` at time ``t``.
 
         With ``wet``, a scalar grid function of the wet fraction (:class:`fempm.gauges.WetFraction`),
-        the pressure is NaN (blank in ParaView) where it is below :data:`fempm.gauges.DRY_FRACTION`:
-        the B-spline pressure reaches a cell or so past the water, where it means nothing. The
-        particles' pressure (``particles_*.vtp``) is the primary output."""
+        the pressure is NaN (blank in ParaView) where it is below :data:`fempm.gauges.DRY_FRACTION`
+        and inside obstacles: the B-spline pressure reaches a cell or so past the water, where it means
+        nothing. The particles' pressure (``particles_*.vtp``) is the primary output."""
         p = pressure.evaluate(self.cells, self.xi)[:, 0, 0]
         if wet is not None:
             from fempm.gauges import DRY_FRACTION
 
-            p = np.where(wet.evaluate(self.cells, self.xi)[:, 0, 0] >= DRY_FRACTION, p, np.nan)
+            wet_here = (wet.evaluate(self.cells, self.xi)[:, 0, 0] >= DRY_FRACTION) & ~self.solid
+            p = np.where(wet_here, p, np.nan)
         local = (self.nodes, velocity.evaluate(self.cells, self.xi)[:, 0, :], p)
         parts = self.comm.gather(local, root=0)
         error = None

@@ -116,8 +116,9 @@ def smoothed_density(mass: np.ndarray, integrals: np.ndarray) -> np.ndarray:
     return mass / integrals
 
 
-def density_normalisation(basis, particles) -> np.ndarray:
-    """``int N_i dx`` of eq. (2) for every structured function, as the particles measure it.
+def density_normalisation(basis, particles, blocked: bool = True) -> np.ndarray:
+    """``int N_i dx`` of eq. (2) for every structured function, as the particles measure it
+    (``blocked``: over the obstacles' cells too; else over the open cells alone, where particles go).
 
     When all particles come from one seeding lattice (``n x n`` per cell, the volumes ``h^2 / n^2``,
     or in a cut cell its area over ``n^2``) the integral is taken by that lattice's rule, so that
@@ -134,8 +135,8 @@ def density_normalisation(basis, particles) -> np.ndarray:
         lattice = (grid.h * shares).prod(axis=1) / n**2  # as Particles.seed computes them
         nearest = np.abs(volumes[:, None] - lattice).min(axis=1, initial=np.inf) if len(volumes) else volumes
         if comm.allreduce(bool(np.all(nearest <= 1e-12 * v_max)), op=MPI.LAND):
-            return basis.lattice_integrals(n)
-    return basis.integrals
+            return basis.lattice_integrals(n, blocked)
+    return basis.integrals if blocked else basis.open_integrals()
 
 
 def flip(velocity: np.ndarray, change: np.ndarray, new: np.ndarray, pic_blend: float) -> np.ndarray:

@@ -47,6 +47,25 @@ def test_gauges_read_a_column_at_rest_alike_on_every_rank():
         np.testing.assert_array_equal(other, everyone[0])
 
 
+@pytest.mark.mpi
+def test_gauges_on_an_obstacles_face_read_the_water_at_rest_beside_it():
+    """The column at rest against an obstacle 30 cells high (the right half of a 20 x 40 grid): on the
+    obstacle's face the pressure is hydrostatic and the level the column's height, as at a tank's wall.
+    The wet fraction counts only the open cells: over all of them it read about 1/2 on the face (the
+    pressure NaN above y = 0.03 m, the level 0.147 m)."""
+    grid = fempm.Grid.from_cells(MPI.COMM_WORLD, (0.0, 0.0), (2 * L, 4 * L), (20, 40))
+    grid.block([i + 20 * j for j in range(30) for i in range(10, 20)])
+    solver = resting_water(grid, L, H, 20, RHO)
+    readings = sample([PressureGauge("face_low", (L, 0.005)), PressureGauge("face_middle", (L, 0.1)),
+                       LevelGauge("beside", L - 1e-4), LevelGauge("face", L), LevelGauge("in_the_obstacle", 1.5 * L)],
+                      solver)
+    assert readings["face_low"] == pytest.approx(RHO * G * (H - 0.005), rel=0.005)  # measured 0.16 %
+    assert readings["face_middle"] == pytest.approx(RHO * G * (H - 0.1), rel=0.002)  # measured 1.7e-5
+    assert readings["beside"] == pytest.approx(H, rel=1e-5)  # measured 3.6e-7
+    assert readings["face"] == pytest.approx(H, rel=1e-5)  # measured 3.6e-7
+    assert readings["in_the_obstacle"] == 0.0
+
+
 def test_a_seeded_column_reads_its_height_at_any_line():
     solver = column()
     sampler = Sampler([LevelGauge(f"x{x}", x) for x in (0.0, 0.003, 0.07, L)], solver.basis)
