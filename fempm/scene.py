@@ -679,11 +679,12 @@ def _check_geometry(scene: Scene):
         raise InputError(f"{_grid_key(d)}: the grid would be {d.shape} cells of {d.h:g} m, not {nx} x {ny} of {h:g}")
     owner = _check_obstacles(scene, nx, ny, h)
     _check_bodies(scene, owner, nx, h)
-    _check_gauges(scene, h)
+    _check_gauges(scene, h, owner, nx, ny)
 
 
-def _check_gauges(scene: Scene, h: float):
-    """Gauges inside the domain, their names unique."""
+def _check_gauges(scene: Scene, h: float, owner: np.ndarray, nx: int, ny: int):
+    """Gauges inside the domain, pressure gauges not inside an obstacle (``owner``: the obstacle of each
+    cell, -1 for none), their names unique."""
     d, seen = scene.domain, {}
     lower, upper, tol = np.asarray(d.lower), np.asarray(d.upper), 1e-9 * h
     for k, g in enumerate(scene.gauges):
@@ -695,8 +696,26 @@ def _check_gauges(scene: Scene, h: float):
                                      or np.any(np.asarray(g.position) > upper + tol)):
             raise InputError(f"{where}.position = {list(g.position)}: outside the domain "
                              f"{lower.tolist()}..{upper.tolist()} (m)")
+        if g.kind == "pressure":
+            _check_gauge_clear(g.position, owner, lower, h, tol, (nx, ny), where)
         if g.kind == "level" and not lower[0] - tol <= g.x <= upper[0] + tol:
             raise InputError(f"{where}.x = {g.x:g}: outside the domain's width {lower[0]:g}..{upper[0]:g} (m)")
+
+
+def _check_gauge_clear(position, owner: np.ndarray, lower: np.ndarray, h: float, tol: float, shape, where: str):
+    """A pressure gauge at a point that only blocked cells touch would never read water: refused. A point on
+    an obstacle's face (an edge between a blocked cell and an open one) is the fluid's."""
+    nx, ny = shape
+
+    def cell(offset: float) -> np.ndarray:  # column and row of the point moved by offset
+        return np.clip(np.floor((np.asarray(position) - lower + offset) / h).astype(int), 0, [nx - 1, ny - 1])
+
+    (i0, j0), (i1, j1), (i, j) = cell(-tol), cell(tol), cell(0.0)
+    if np.all(owner.reshape(ny, nx)[j0:j1 + 1, i0:i1 + 1] >= 0):
+        x0, y0 = lower + h * np.array([i, j])
+        raise InputError(f"{where}.position = {list(position)}: inside obstacles[{owner[i + nx * j]}] (its blocked "
+                         f"cell [{x0:g}, {x0 + h:g}] x [{y0:g}, {y0 + h:g}] m), where no water goes; a gauge on the "
+                         f"obstacle's face lies on an edge between a blocked cell and an open one")
 
 
 def _check_obstacles(scene: Scene, nx: int, ny: int, h: float) -> np.ndarray:

@@ -205,6 +205,11 @@ BAD_SCENES = [
      r"gauges\[4\].position: a level gauge takes x, not position"),
     ("gauge outside the tank", _edit("position = [0.5839, 0.0584]", "position = [0.6, 0.0584]"), [],
      r"gauges\[3\].position = \[0.6, 0.0584\]: outside the domain \[0.0, 0.0\]..\[0.584, 0.584\] \(m\)"),
+    ("pressure gauge inside an obstacle",
+     DAMBREAK + '\n[[obstacles]]\nshape = "rectangle"\nlower = [0.5, 0.0]\nupper = [0.584, 0.05]\n', [],
+     r"gauges\[0\].position = \[0.5839, 0.005\]: inside obstacles\[0\] \(its blocked cell \[0.5694, 0.584\] x "
+     r"\[0, 0.0146\] m\), where no water goes; a gauge on the obstacle's face lies on an edge between a blocked cell "
+     r"and an open one"),
     ("two gauges of one name", _edit('name = "right_y0.0146"', 'name = "right_y0.005"'), [],
      r"gauges\[1\].name = 'right_y0.005': gauges\[0\] has that name; names must be unique"),
     ("gauge interval not whole steps", _edit("x = 0.292 ", "x = 0.292\ninterval = 0.0105\n#"), [],
