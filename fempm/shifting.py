@@ -61,46 +61,27 @@ def _wendland(q, norm):
     return norm * t3 * t * (2.0 * q + 1.0), -5.0 * norm * q * t3
 
 
-#: bins per kernel support in the neighbour search: a point's neighbours lie in the 7 x 7 bins about it
-_BINS_PER_SUPPORT = 3
-
-
-@numba.njit(cache=True)
-def _sorted_by_bin(x, volume, lower, width, nbx, nby):
-    """The points' coordinates and volumes sorted by bin (``width`` square, row by row) and each bin's first
-    position (``start[b]`` to ``start[b + 1]``): a row of neighbouring bins is one contiguous range."""
-    n = x.shape[0]
-    start = np.zeros(nbx * nby + 1, dtype=np.int64)
-    bins = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        b0 = min(max(int((x[i, 0] - lower[0]) / width), 0), nbx - 1)
-        b1 = min(max(int((x[i, 1] - lower[1]) / width), 0), nby - 1)
-        bins[i] = b0 + nbx * b1
-        start[bins[i] + 1] += 1
-    for b in range(nbx * nby):
-        start[b + 1] += start[b]
-    fill = start[:-1].copy()
-    xs, ys, vs = np.empty(n), np.empty(n), np.empty(n)
-    for i in range(n):
-        k = fill[bins[i]]
-        fill[bins[i]] += 1
-        xs[k], ys[k], vs[k] = x[i, 0], x[i, 1], volume[i]
-    return xs, ys, vs, start
-
-
 @numba.njit(cache=True)
 def concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, grad, conc):
     """``grad_i = sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij`` and ``conc_i = sum_j V_j W_ij`` for the first
     ``n_own`` points, over all points within ``2 h_k`` and their images across the mirrored sides (left,
     right, bottom, top)."""
+    n = x.shape[0]
     support = 2.0 * hk
-    support2 = support * support
     norm = 7.0 / (4.0 * np.pi * hk * hk)
-    reach = _BINS_PER_SUPPORT
-    width = support / reach
-    nbx = max(int((upper[0] - lower[0]) / width) + 1, 1)
-    nby = max(int((upper[1] - lower[1]) / width) + 1, 1)
-    xs, ys, vs, start = _sorted_by_bin(x, volume, lower, width, nbx, nby)
+    nbx = max(int((upper[0] - lower[0]) / support) + 1, 1)
+    nby = max(int((upper[1] - lower[1]) / support) + 1, 1)
+    head = -np.ones(nbx * nby, dtype=np.int64)
+    nxt = np.empty(n, dtype=np.int64)
+    bx = np.empty(n, dtype=np.int64)
+    by = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        bx[i] = min(max(int((x[i, 0] - lower[0]) / support), 0), nbx - 1)
+        by[i] = min(max(int((x[i, 1] - lower[1]) / support), 0), nby - 1)
+        b = bx[i] + nbx * by[i]
+        nxt[i] = head[b]
+        head[b] = i
+    support2 = support * support
     ox = np.empty(4)  # the images this particle sees: x_j -> (ox - x_j) or x_j, likewise y
     oy = np.empty(4)
     fx = np.empty(4)
@@ -122,29 +103,31 @@ def concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, gr
         c = 0.0
         gx = 0.0
         gy = 0.0
-        for k in range(images):
-            # the images of the neighbours about i are the neighbours of i's image q: x_i - (o + f x_j) = f (q - x_j)
-            qx, qy = ox[k] + fx[k] * xi, oy[k] + fy[k] * yi
-            cx = int(np.floor((qx - lower[0]) / width))
-            cy = int(np.floor((qy - lower[1]) / width))
-            first, last = max(cx - reach, 0), min(cx + reach, nbx - 1)
-            if first > last:
+        for dby in range(-1, 2):
+            b1 = by[i] + dby
+            if b1 < 0 or b1 >= nby:
                 continue
-            for b1 in range(max(cy - reach, 0), min(cy + reach, nby - 1) + 1):
-                for j in range(start[b1 * nbx + first], start[b1 * nbx + last + 1]):
-                    dx = fx[k] * (qx - xs[j])
-                    dy = fy[k] * (qy - ys[j])
-                    r2 = dx * dx + dy * dy
-                    if r2 >= support2:
-                        continue
-                    r = np.sqrt(r2)
-                    w, dw = _wendland(r / hk, norm)
-                    c += vs[j] * w
-                    if r > 0.0:
-                        ratio = w / w_dp
-                        f = vs[j] * (1.0 + TENSILE * ratio * ratio * ratio * ratio) * dw / (hk * r)
-                        gx += f * dx
-                        gy += f * dy
+            for dbx in range(-1, 2):
+                b0 = bx[i] + dbx
+                if b0 < 0 or b0 >= nbx:
+                    continue
+                j = head[b0 + nbx * b1]
+                while j >= 0:
+                    for k in range(images):
+                        dx = xi - (ox[k] + fx[k] * x[j, 0])
+                        dy = yi - (oy[k] + fy[k] * x[j, 1])
+                        r2 = dx * dx + dy * dy
+                        if r2 >= support2:
+                            continue
+                        r = np.sqrt(r2)
+                        w, dw = _wendland(r / hk, norm)
+                        c += volume[j] * w
+                        if r > 0.0:
+                            ratio = w / w_dp
+                            f = volume[j] * (1.0 + TENSILE * ratio * ratio * ratio * ratio) * dw / (hk * r)
+                            gx += f * dx
+                            gy += f * dy
+                    j = nxt[j]
         conc[i] = c
         grad[i, 0] = gx
         grad[i, 1] = gy
