@@ -17,13 +17,14 @@ evaluations at points fixed once:
   would otherwise read a number. ``phi`` is taken at the point moved to at least half a cell
   inside the walls and off the obstacles' faces (:func:`off_the_walls`): a particle stands for a
   small square around it, and where water is stretched along a wall the particles leave a gap of
-  up to half a cell between themselves and the wall although the water is there; and ``int N_i dx``
-  counts an obstacle's cells, where no particle goes, so that on its face ``phi`` of still water is
-  about 1/2;
+  up to half a cell between themselves and the wall although the water is there. Beside an
+  obstacle ``int N_i dx`` is taken over the open cells alone (over the obstacle's cells too, where
+  no particle goes, still water on its face read about 1/2);
 * :class:`LevelGauge` reads the depth of water along the vertical line ``x`` (moved to at least
-  half a cell from the side walls and the obstacles' faces, likewise), ``int phi(x, y) dy`` from the grid's bottom to its
-  top (as OpenFOAM's ``interfaceHeight`` integrates ``alpha``: robust to the particle spacing; a
-  splash above the surface adds its own thickness). A dry line reads 0.
+  half a cell from the side walls and the obstacles' faces, likewise; inside an obstacle nothing),
+  ``int phi(x, y) dy`` from the grid's bottom to its top (as OpenFOAM's ``interfaceHeight``
+  integrates ``alpha``: robust to the particle spacing; a splash above the surface adds its own
+  thickness). A dry line reads 0.
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ import numpy as np
 
 from fempm import transfer
 from fempm.errors import InputError
+from fempm.grid import touches_only
 from fempm.space import GridFunction, Space
 
 __all__ = ["DRY_FRACTION", "LevelGauge", "PressureGauge", "Sampler", "UNITS", "WetFraction", "inside_obstacles",
@@ -41,8 +43,6 @@ __all__ = ["DRY_FRACTION", "LevelGauge", "PressureGauge", "Sampler", "UNITS", "W
 
 #: Points whose wet fraction is below this are dry (pressure gauges read NaN there).
 DRY_FRACTION = 0.5
-#: A point this close to a cell's edge (in cells) touches the cell beyond it too.
-_EDGE = 1e-9
 #: The unit of each kind's reading.
 UNITS = {"pressure": "Pa", "level": "m"}
 
@@ -100,11 +100,7 @@ def _blocked_near(grid, u: np.ndarray, axis: int, shift: float) -> np.ndarray:
 
 def inside_obstacles(grid, points: np.ndarray) -> np.ndarray:
     """Whether each point lies inside an obstacle: every cell it touches (to round-off) is blocked."""
-    u = (np.asarray(points, dtype=float).reshape(-1, 2) - grid.lower) / grid.h
-    inside = np.ones(len(u), dtype=bool)
-    for axis in (0, 1):
-        inside &= _blocked_near(grid, u, axis, -_EDGE) & _blocked_near(grid, u, axis, _EDGE)
-    return inside
+    return touches_only(points, grid.lower, grid.h, (grid.nx, grid.ny), grid.blocked)
 
 
 def off_the_walls(grid, points: np.ndarray, axes=(0, 1)) -> np.ndarray:

@@ -26,7 +26,7 @@ import dolfinx.mesh
 
 from fempm.errors import InputError, ParticleOutsideGridError
 
-__all__ = ["Grid", "cell_counts", "cell_shares", "last_widths", "square_cell_size"]
+__all__ = ["Grid", "cell_counts", "cell_shares", "last_widths", "square_cell_size", "touches_only"]
 
 # Points within this fraction of a cell outside the grid (round-off of a
 # position on a wall) are taken to lie on the wall.
@@ -116,6 +116,26 @@ def cell_shares(cells, counts, last) -> np.ndarray:
     cells = np.asarray(cells)
     ij = np.stack([cells % counts[0], cells // counts[0]], axis=-1)
     return np.where(ij == np.asarray(counts) - 1, np.asarray(last, dtype=np.float64), 1.0)
+
+
+#: A point this close to a cell's edge (in cells) touches the cell beyond it too.
+_EDGE = 1e-9
+
+
+def touches_only(points, lower, h: float, counts, marked: np.ndarray) -> np.ndarray:
+    """Whether every cell each point ``(n, 2)`` touches (its own, and those whose edge it lies on to
+    round-off) is ``marked`` (a boolean per structured cell of ``counts = (nx, ny)`` cells of size ``h``
+    from ``lower``): e.g. a point inside an obstacle, not on its face."""
+    nx, ny = counts
+    u = (np.asarray(points, dtype=float).reshape(-1, 2) - np.asarray(lower)) / h
+    top = np.array([nx - 1, ny - 1])
+    low = np.clip(np.floor(u - _EDGE), 0, top).astype(np.int64)
+    high = np.clip(np.floor(u + _EDGE), 0, top).astype(np.int64)
+    out = np.ones(len(u), dtype=bool)
+    for i in (low[:, 0], high[:, 0]):
+        for j in (low[:, 1], high[:, 1]):
+            out &= marked[i + nx * j]
+    return out
 
 
 def bisect(weights: np.ndarray, parts: int) -> np.ndarray:

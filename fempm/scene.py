@@ -34,7 +34,7 @@ import numpy as np
 from fempm.errors import InputError
 from fempm.expressions import Expression
 from fempm.formsfile import forms_path, shipped_forms
-from fempm.grid import cell_counts, cell_shares, last_widths, square_cell_size
+from fempm.grid import cell_counts, cell_shares, last_widths, square_cell_size, touches_only
 from fempm.linear import LARGE_SYSTEM
 from fempm.options import FLUID_REGION_CELLS, PRESSURE_QUADRATURES, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
@@ -697,21 +697,17 @@ def _check_gauges(scene: Scene, h: float, owner: np.ndarray, nx: int, ny: int):
             raise InputError(f"{where}.position = {list(g.position)}: outside the domain "
                              f"{lower.tolist()}..{upper.tolist()} (m)")
         if g.kind == "pressure":
-            _check_gauge_clear(g.position, owner, lower, h, tol, (nx, ny), where)
+            _check_gauge_clear(g.position, owner, lower, h, (nx, ny), where)
         if g.kind == "level" and not lower[0] - tol <= g.x <= upper[0] + tol:
             raise InputError(f"{where}.x = {g.x:g}: outside the domain's width {lower[0]:g}..{upper[0]:g} (m)")
 
 
-def _check_gauge_clear(position, owner: np.ndarray, lower: np.ndarray, h: float, tol: float, shape, where: str):
+def _check_gauge_clear(position, owner: np.ndarray, lower: np.ndarray, h: float, shape, where: str):
     """A pressure gauge at a point that only blocked cells touch would never read water: refused. A point on
     an obstacle's face (an edge between a blocked cell and an open one) is the fluid's."""
-    nx, ny = shape
-
-    def cell(offset: float) -> np.ndarray:  # column and row of the point moved by offset
-        return np.clip(np.floor((np.asarray(position) - lower + offset) / h).astype(int), 0, [nx - 1, ny - 1])
-
-    (i0, j0), (i1, j1), (i, j) = cell(-tol), cell(tol), cell(0.0)
-    if np.all(owner.reshape(ny, nx)[j0:j1 + 1, i0:i1 + 1] >= 0):
+    if touches_only(position, lower, h, shape, owner >= 0)[0]:
+        nx, ny = shape
+        i, j = np.clip(np.floor((np.asarray(position) - lower) / h).astype(int), 0, [nx - 1, ny - 1])
         x0, y0 = lower + h * np.array([i, j])
         raise InputError(f"{where}.position = {list(position)}: inside obstacles[{owner[i + nx * j]}] (its blocked "
                          f"cell [{x0:g}, {x0 + h:g}] x [{y0:g}, {y0 + h:g}] m), where no water goes; a gauge on the "

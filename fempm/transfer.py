@@ -551,8 +551,8 @@ class NoiseFilter:
     null-space noise without PIC's smoothing of the resolved flow. The fit takes a difference that varies
     linearly as smooth everywhere; a fit's mean alone (P2G and G2P) does only where a function's
     particles lie evenly around its node, not along a wall or a free surface, where it took the flow's
-    gradient there for noise and slowed water sliding along a floor, more as the step fell (docs/notes-accuracy.md, "The
-    PIC shares").
+    gradient there for noise and slowed water sliding along a floor, more as the step fell
+    (docs/notes-accuracy.md, "The PIC shares").
 
     A particle alone in its functions' support is its own smoothing (``S d = d``), so its noise
     would never be damped: where the particle's own weight in its smoothing,

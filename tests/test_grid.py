@@ -5,6 +5,7 @@ import pytest
 
 import fempm
 from fempm.errors import InputError, ParticleOutsideGridError
+from fempm.grid import touches_only
 
 
 def test_locate_matches_cell_geometry(comm):
@@ -102,3 +103,13 @@ def test_bisection_splits_weight_in_proportion():
     weights = np.ones((6, 9))
     part = bisect(weights, 3)
     assert sorted(np.bincount(part.ravel())) == [18, 18, 18]
+
+
+def test_a_point_touches_only_marked_cells_when_every_cell_at_its_edges_is_marked():
+    """``touches_only``: inside a block of marked cells, yes; on its face or at a corner shared with an open cell,
+    no (the point touches that open cell too); round-off off an edge counts as on it."""
+    marked = np.zeros(4 * 3, dtype=bool)
+    marked[[1, 2, 5, 6]] = True  # columns 1-2, rows 0-1 of a 4 x 3 grid of cells of 0.5 from (0, 0)
+    points = [(0.75, 0.25), (1.0, 0.5), (0.5, 0.5), (1.5 - 1e-12, 0.25), (0.5, 1.0), (1.25, 0.75), (1.75, 0.25)]
+    got = touches_only(points, (0.0, 0.0), 0.5, (4, 3), marked)
+    assert got.tolist() == [True, True, False, False, False, True, False]
