@@ -179,10 +179,14 @@ class Basis:
     @cached_property
     def integrals(self) -> np.ndarray:
         """``int N_i dx`` over the tank for every function, exact (Gauss; in a cut cell over its part)."""
-        return self.open_integrals(blocked=True)
+        return self._gauss_integrals(blocked=True)
 
-    def open_integrals(self, blocked: bool = False) -> np.ndarray:
-        """``int N_i dx`` over the cells no obstacle blocks (``blocked``: over all, :attr:`integrals`), exact."""
+    def open_integrals(self) -> np.ndarray:
+        """``int N_i dx`` over the cells no obstacle blocks, exact."""
+        return self._gauss_integrals(blocked=False)
+
+    def _gauss_integrals(self, blocked: bool) -> np.ndarray:
+        """``int N_i dx`` by Gauss quadrature (``blocked``: over the obstacles' cells too)."""
         pts, wts = np.polynomial.legendre.leggauss(self.degree + 1)
         return self._integrals(0.5 * (pts + 1.0), 0.5 * wts, blocked)
 
