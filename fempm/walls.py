@@ -4,7 +4,7 @@ Both bases interpolate at the sides, so holding a function's coefficient holds t
 on the side. :class:`Walls` lists the held velocity dofs of a space (a side's normal component
 for ``slip``, both for ``no-slip``, the tangential one for ``outflow``, none for ``open``; both
 on every function non-zero in an obstacle cell) and the value held on each (zero, or a moving
-wall's speed); it also stops particles at the impermeable sides. :class:`FreeDofs` picks the dofs
+wall's speed); it also stops particles at the impermeable sides and at the obstacles' faces. :class:`FreeDofs` picks the dofs
 an implicit step solves for.
 
 **One-sided walls** (contact with separation, Signorini at the velocity level). Held always, a
@@ -96,6 +96,7 @@ class Walls:
         impermeable = {side: kind in ("slip", "no-slip") for side, kind in self.conditions.items()}
         self._inside = (np.where([impermeable["left"], impermeable["bottom"]], grid.lower + margin, -np.inf),
                         np.where([impermeable["right"], impermeable["top"]], grid.upper - margin, np.inf))
+        self._obstacles = bool(grid.blocked.any())
 
     def _contact_of(self, owned: np.ndarray):
         """The normal dofs of slip and no-slip sides at rest (positions among the owned dofs), the
@@ -300,7 +301,10 @@ class Walls:
 
         The interpolated displacement of a cell next to a wall cannot decelerate within the cell,
         so at large steps or hard impacts it may carry a particle a little past the wall: it is
-        stopped there, and counted in :attr:`stops`. Outflow and open sides are no walls. NaN stays NaN.
+        stopped there, and counted in :attr:`stops`. Outflow and open sides are no walls. An
+        obstacle's faces are walls alike: a particle that crossed one into a blocked cell is put back
+        on the nearest face of that cell with an open cell beyond it (:func:`_stop_at_obstacle_faces`).
+        NaN stays NaN.
         """
         grid = self.space.grid
         if self.physics.recycle:
@@ -311,7 +315,42 @@ class Walls:
         if stopped:
             self.stops += stopped
             x = np.clip(x, low, high)
+        if self._obstacles:
+            self.stops += _stop_at_obstacle_faces(x, grid.lower, grid.h, grid.nx, grid.ny, grid.blocked,
+                                                  1e-9 * grid.h)
         return x
+
+
+@numba.njit(cache=True)
+def _stop_at_obstacle_faces(x, lower, h, nx, ny, blocked, margin):
+    """Points ``x`` ``(n, 2)`` in a ``blocked`` cell moved, in place, to ``margin`` beyond the nearest face of
+    that cell that has an open cell of the grid beyond it; returns how many were moved. A point with no
+    such face (deep in an obstacle) stays where it is, for relocation to report."""
+    moved = 0
+    for p in range(x.shape[0]):
+        s0, s1 = (x[p, 0] - lower[0]) / h, (x[p, 1] - lower[1]) / h
+        if not (np.isfinite(s0) and np.isfinite(s1)):
+            continue
+        i, j = min(max(int(np.floor(s0)), 0), nx - 1), min(max(int(np.floor(s1)), 0), ny - 1)
+        if not blocked[i + nx * j]:
+            continue
+        best, axis, target = np.inf, -1, 0.0
+        for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            a, b = i + di, j + dj
+            if a < 0 or a >= nx or b < 0 or b >= ny or blocked[a + nx * b]:
+                continue
+            if di != 0:  # the left or right face: the coordinate x
+                face = lower[0] + h * (i + (di > 0))
+                distance, beyond, k = abs(x[p, 0] - face), face + di * margin, 0
+            else:
+                face = lower[1] + h * (j + (dj > 0))
+                distance, beyond, k = abs(x[p, 1] - face), face + dj * margin, 1
+            if distance < best:
+                best, axis, target = distance, k, beyond
+        if axis >= 0:
+            x[p, axis] = target
+            moved += 1
+    return moved
 
 
 @numba.njit(cache=True)
