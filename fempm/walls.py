@@ -4,8 +4,8 @@ Both bases interpolate at the sides, so holding a function's coefficient holds t
 on the side. :class:`Walls` lists the held velocity dofs of a space (a side's normal component
 for ``slip``, both for ``no-slip``, the tangential one for ``outflow``, none for ``open``; both
 on every function non-zero in an obstacle cell) and the value held on each (zero, or a moving
-wall's speed); it also stops particles at the impermeable sides and at the obstacles' faces. :class:`FreeDofs` picks the dofs
-an implicit step solves for.
+wall's speed); it also stops particles at the impermeable sides and at the obstacles' faces.
+:class:`FreeDofs` picks the dofs an implicit step solves for.
 
 **One-sided walls** (contact with separation, Signorini at the velocity level). Held always, a
 slip or no-slip wall is two-sided: it pulls water that would leave it, so water thrown at the
