@@ -5,11 +5,13 @@ The short versions run in the default suite; the studies of ``benchmarks/transfe
 step), affine-FLIP the default (APIC's affine parts, FLIP increments, a PIC share of 100/s).
 """
 
+import numpy as np
 import pytest
 from mpi4py import MPI
 
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
-from fempm.cases import column, vortices
+from fempm.cases import column, dambreak, vortices
+from fempm.simulation import build_solver
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial studies")
 
@@ -287,6 +289,28 @@ def test_column_stays_at_rest_for_14_s():
     assert r["status"] == "completed"
     assert r["speed"] < 1e-4  # measured 1.12e-5 m/s (without the rest share 0.17 m/s)
     assert 0 < r["volume"] < 0.0021  # measured +0.197 %
+
+
+@pytest.mark.xfail(strict=True, reason="an open defect: the column holds at rest only from the seeding lattice. Its "
+                   "particles moved by at most 1e-4 of their spacing, at random, it reaches 9.4e-2 m/s at 1.5 s (by 1e-5: "
+                   "1.2e-2 m/s at 6 s; by 1e-3: 0.11 m/s at 0.5 s; by 0.3, a flow's disorder: 0.2-0.4 m/s from 0.5 s on); "
+                   "also at a fixed 1 ms step, without the end-of-step map (later), the shifting, the volume correction, "
+                   "with PSPG's tau 4 or 1/4 times. FLIP holds this start (8e-5 m/s at 4 s) but not a flow's disorder "
+                   "(0.08-0.18 m/s), the Gauss option both (2.4e-4 m/s; 4e-3 to 9e-3 m/s): the particle quadrature of the "
+                   "pressure's terms with affine transfers (docs/notes-accuracy.md, 'Water at rest from a disordered start')")
+def test_a_column_at_rest_from_slightly_disordered_particles_stays_at_rest():
+    """The dam break's column in a tank as wide as it, the shipped scene's step and solver, its particles moved
+    at random by at most 1e-4 of their spacing (0.73 micrometres): a start no flow ever leaves as exact as a lattice."""
+    width = column.WIDTH
+    changes = {"gauges": None, "time.end": 2.0, "domain.upper": [width, 4 * width], "domain.cells": [10, 40],
+               "bodies.0.upper": [width, column.HEIGHT]}
+    solver = build_solver(dambreak.scene(changes, files=False), MPI.COMM_WORLD)
+    spacing = width / 20
+    p = solver.particles
+    p.fields["x"] = solver.walls.keep_inside(p.x + 1e-4 * spacing * np.random.default_rng(1).uniform(-1, 1, p.x.shape))
+    while solver.time < 2.0 - 1e-9:
+        solver.step(until=2.0)
+    assert solver.fastest() < 1e-3  # measured 0.17 m/s (from the lattice itself: 9.3e-5 m/s)
 
 
 def test_column_stays_at_rest_at_ten_ms_steps():
