@@ -40,7 +40,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["PROBES", "InterFoamRun", "InterFoamError", "ensure_openfoam", "front_of_rows", "run", "write_case"]
+__all__ = ["PROBES", "InterFoamRun", "InterFoamError", "ensure_openfoam", "front_of_rows", "read_water_speed", "run",
+           "write_case"]
 
 TANK = 0.584                 #: m, the square tank's side
 COLUMN = (0.146, 0.292)      #: m, the water column's width and height
@@ -73,6 +74,7 @@ class InterFoamRun:
         volume_drift: ``V(end) / V(0) - 1`` of the water volume; ``volume_drift_max`` the largest ``|.|``.
         probes: with ``probes=True``: ``{"t": times, "p": {name: Pa relative to the air},
             "alpha": {name: alpha.water}, "air_level": the solver's p subtracted}``; else None.
+        water_speed: with ``water_speed=True``: ``(n, 2)``, t (s) and the water's mean speed (m/s) per step.
     """
 
     cells: int
@@ -84,6 +86,7 @@ class InterFoamRun:
     volume_drift: float
     volume_drift_max: float
     probes: dict | None = None
+    water_speed: np.ndarray | None = None
 
 
 # -- the programs -----------------------------------------------------------------------------------
@@ -141,11 +144,12 @@ def _air_grid() -> list[tuple[float, float]]:
 
 
 def write_case(folder: str | Path, cells: int, end_time: float, probes: bool = False,
-               sample_interval: float = 0.005) -> Path:
+               sample_interval: float = 0.005, water_speed: bool = False) -> Path:
     """Write the dam break's interFoam case into ``folder`` (created), ``cells`` x ``cells`` cells.
 
     ``cells`` must be a multiple of 4 (the column's edges then lie on cell faces). Fields are
-    written once, at ``end_time``; the front row every ``sample_interval`` s of flow.
+    written once, at ``end_time``; the front row every ``sample_interval`` s of flow; with
+    ``water_speed`` the water's mean speed every step (:func:`read_water_speed`).
     """
     if cells < 4 or cells % 4:
         raise ValueError(f"cells must be a positive multiple of 4, got {cells}")
@@ -217,6 +221,14 @@ sigma 0.07;
         probeLocations ( {_points(_air_grid(), zc)} );
     }}
 """
+    speed_objects = """
+    speed { type mag; libs (fieldFunctionObjects); field U; result speed; writeControl none; }
+    waterSpeed
+    {
+        type volFieldValue; libs (fieldFunctionObjects); writeControl timeStep; writeInterval 1; log false;
+        fields (speed); operation weightedVolAverage; weightField alpha.water; regionType all; writeFields false;
+    }
+""" if water_speed else ""
     bottom = _points(((x, 0.5 * dz) for x in _bottom_row(cells)), zc)
     files["system/controlDict"] = _header("dictionary", "controlDict") + f"""
 application interFoam;
@@ -239,7 +251,7 @@ functions
         type volFieldValue; libs (fieldFunctionObjects); writeControl timeStep; writeInterval 1; log false;
         fields (alpha.water); operation volIntegrate; regionType all; writeFields false;
     }}
-{probe_objects}}}
+{probe_objects}{speed_objects}}}
 """
     files["system/fvSchemes"] = _header("dictionary", "fvSchemes") + """
 ddtSchemes { default Euler; }
@@ -296,7 +308,7 @@ def _program(name: str, folder: Path) -> float:
 
 
 def run(cells: int, end_time: float, probes: bool = False, folder: str | Path | None = None,
-        sample_interval: float = 0.005) -> InterFoamRun:
+        sample_interval: float = 0.005, water_speed: bool = False) -> InterFoamRun:
     """Write, mesh, initialise and run the case; parse its front, volume and probes.
 
     ``folder``: where to keep the case (default: a temporary folder, removed afterwards).
@@ -310,7 +322,7 @@ def run(cells: int, end_time: float, probes: bool = False, folder: str | Path | 
     keep = folder is not None
     case = Path(folder) if keep else Path(tempfile.mkdtemp(prefix=f"interfoam-dambreak-{cells}-"))
     try:
-        write_case(case, cells, end_time, probes, sample_interval)
+        write_case(case, cells, end_time, probes, sample_interval, water_speed)
         _program("blockMesh", case)
         _program("setFields", case)
         wall = _program("interFoam", case)
@@ -320,7 +332,8 @@ def run(cells: int, end_time: float, probes: bool = False, folder: str | Path | 
         drift, drift_max = read_volume(case, cells)
         return InterFoamRun(cells=cells, end_time=end_time, steps=steps, wall_s=wall, cpu_s=cpu,
                             front_t_x=read_front(case, cells), volume_drift=drift, volume_drift_max=drift_max,
-                            probes=read_probes(case) if probes else None)
+                            probes=read_probes(case) if probes else None,
+                            water_speed=read_water_speed(case) if water_speed else None)
     finally:
         if not keep:
             shutil.rmtree(case, ignore_errors=True)
@@ -368,6 +381,15 @@ def read_volume(case: Path, cells: int) -> tuple[float, float]:
     volume = table[np.argsort(table[:, 0]), 1]
     v0 = COLUMN[0] * COLUMN[1] * TANK / cells
     return float(volume[-1] / v0 - 1), float(np.max(np.abs(volume / v0 - 1)))
+
+
+def read_water_speed(case: Path) -> np.ndarray:
+    """``(t, mean speed)`` per step: ``|U|`` averaged over the water, ``sum alpha |U| V / sum alpha V``."""
+    files = sorted((case / "postProcessing" / "waterSpeed").glob("*/*.dat"))
+    if not files:
+        raise InterFoamError(f"{case}: no waterSpeed output")
+    table = np.vstack([np.loadtxt(f, comments="#", ndmin=2) for f in files])
+    return table[np.argsort(table[:, 0], kind="stable")][:, :2]
 
 
 def _probe_series(case: Path, name: str, field: str, columns: int) -> tuple[np.ndarray, np.ndarray]:

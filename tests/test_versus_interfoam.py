@@ -61,3 +61,28 @@ def test_quick_mode_runs_end_to_end(tmp_path):
     assert "| fempm | 40² | 4 | 46 |" in text  # the shipped scene: 2 x 2 particles per cell, 46 steps to 0.27 s
     # (45 with tau's T = max(dt, ...))
     assert (tmp_path / "speed" / "error_vs_time.png").stat().st_size > 10_000
+
+
+def _cell_field(path: Path, components: int) -> np.ndarray:
+    """An OpenFOAM ASCII field's ``internalField nonuniform`` values, ``(cells, components)``."""
+    text = path.read_text()
+    start = text.index("internalField")
+    count_at = text.index("(", start)
+    count = int(text[start:count_at].split()[-1])
+    body = text[count_at + 1:text.index("\n)", count_at)]
+    numbers = np.array(body.replace("(", " ").replace(")", " ").split(), dtype=float)
+    return numbers.reshape(count, components)
+
+
+@needs_interfoam
+def test_the_water_speed_is_the_alpha_weighted_mean_of_the_written_fields(tmp_path):
+    """interfoam.read_water_speed's last sample against the same average computed from the fields interFoam
+    writes at the end time (equal cells: ``sum alpha |U| / sum alpha``)."""
+    run = interfoam.run(40, 0.3, folder=tmp_path / "case", water_speed=True)
+    t, speed = run.water_speed[-1]
+    assert t == pytest.approx(0.3, abs=1e-9)
+    alpha = _cell_field(tmp_path / "case" / "0.3" / "alpha.water", 1)[:, 0]
+    velocity = _cell_field(tmp_path / "case" / "0.3" / "U", 3)
+    expected = np.sum(alpha * np.linalg.norm(velocity, axis=1)) / np.sum(alpha)
+    assert speed == pytest.approx(expected, rel=1e-6)  # the fields are written to 8 digits
+    assert len(run.water_speed) == run.steps and np.all(np.diff(run.water_speed[:, 0]) > 0)
