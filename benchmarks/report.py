@@ -115,9 +115,7 @@ def plot_case(path: Path, case: str, rows: list[Measurement]):
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=7)
     fig.tight_layout()
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    output.save_figure(fig, path)
 
 
 def write_page(doc: Path, results: dict[str, list[Measurement]], full: bool, seconds: float):

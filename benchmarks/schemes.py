@@ -166,9 +166,7 @@ def save(fig, path: Path, ax=None, xlabel: str = "", ylabel: str = "", legend: f
         ax.grid(alpha=0.3)
         ax.legend(fontsize=legend)
     fig.tight_layout()
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
-    pyplot().close(fig)
+    output.save_figure(fig, path, dpi=120)
 
 
 def run_alone(description: str, report):

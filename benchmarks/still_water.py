@@ -136,9 +136,7 @@ def plot(path: Path, runs: dict[str, np.ndarray]):
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    output.save_figure(fig, path)
 
 
 REFERENCE = "interFoam 80²"  #: the settling study's reference run

@@ -50,7 +50,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import interfoam  # noqa: E402
-from fempm.output import atomic_path  # noqa: E402
+from fempm.output import atomic_path, save_figure  # noqa: E402
 from fempm.references import dimensionless_front, front_difference, interfoam_front  # noqa: E402
 
 SCENE = ROOT / "scenes" / "dambreak.toml"
@@ -247,9 +247,7 @@ def plot(rows: list[Row], path: Path, reference: str):
     ax.legend()
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 PAGE = """# Speed: fempm against interFoam on the seed's dam break

@@ -174,9 +174,7 @@ def plot(path: Path, runs: list[tuple[str, dict]], names=None):
     axes[0, 0].legend(fontsize=7, ncol=2)
     axes[-1, 0].set_xlabel("t (s)")
     fig.tight_layout()
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    output.save_figure(fig, path)
 
 
 def _fmt(value, spec: str) -> str:

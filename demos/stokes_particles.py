@@ -174,8 +174,7 @@ if comm.rank == 0:
     ax.set(xlabel="h", ylabel="L2 error of the velocity", title="Stokes integrated on particles (2 x 2 per cell)")
     ax.legend()
     fig.tight_layout()
-    with output.atomic_path(folder / "convergence.png") as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
+    output.save_figure(fig, folder / "convergence.png", dpi=120)
 
 # %% [markdown]
 # ## The check

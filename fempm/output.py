@@ -38,6 +38,7 @@ __all__ = [
     "plot_gauges",
     "prepare_folder",
     "remove_earlier_outputs",
+    "save_figure",
     "snapshot",
     "write_csv",
     "write_json",
@@ -456,9 +457,17 @@ def plot_gauges(path: str | Path, header: list[str], rows, units: list[str]):
         ax.legend(fontsize=7, ncol=2)
     axes[-1, 0].set_xlabel("t (s)")
     fig.tight_layout()
+    save_figure(fig, path)
+
+
+def save_figure(fig, path: str | Path, dpi: int = 110, **options):
+    """Write a matplotlib figure to ``path`` as a PNG whole (:func:`atomic_path`), then close it;
+    ``options`` go to ``savefig`` (e.g. ``bbox_inches="tight"``)."""
+    import matplotlib.pyplot as plt
+
     try:
         with atomic_path(path, _PNG_COMPLETE) as tmp:
-            fig.savefig(tmp, dpi=110, format="png")
+            fig.savefig(tmp, dpi=dpi, format="png", **options)
     finally:
         plt.close(fig)
 

@@ -276,9 +276,7 @@ def plot(path: Path, ghia: Ghia, runs: list[CavityRun]):
     fig.suptitle(f"Lid-driven cavity, Re = {LID_SPEED * SIDE / KINEMATIC_VISCOSITY:g}: mean over the last "
                  f"{runs[0].measurement.extra['window']:g} L/U")
     fig.tight_layout()
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120)
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=120)
 
 
 # -- writing the results (rank 0) ----------------------------------------------------------------

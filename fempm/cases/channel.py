@@ -146,9 +146,7 @@ def plot_profiles(path, flow: Flow, rows: list[Measurement], title: str, quantit
                 label=f"{r.method}, {r.case}")
     ax.set(xlabel=quantity, ylabel="y / H", title=f"{title}\n(lines: analytic)")
     ax.legend(fontsize=7)
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png")
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=120, bbox_inches="tight")
 
 
 def write_results(folder, flow: Flow, rows: list[Measurement], title: str, quantity: str):

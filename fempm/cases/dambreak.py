@@ -255,9 +255,7 @@ def plot_front(path: str | Path, front: np.ndarray, label: str, measures: Mappin
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=130, format="png")
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=130)
 
 
 def stop(program: str, message: str, status: int, comm=MPI.COMM_WORLD):

@@ -78,6 +78,4 @@ def plot(path, rows: list[Measurement]):
     ax.invert_yaxis()
     ax.set(xlabel="p, kPa", ylabel="depth d, m", title="Hydrostatic tank")
     ax.legend(fontsize=8)
-    with output.atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=120, bbox_inches="tight", format="png")
-    plt.close(fig)
+    output.save_figure(fig, path, dpi=120, bbox_inches="tight")
