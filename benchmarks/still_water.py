@@ -84,6 +84,7 @@ def fastest_at(container: str, variant: str, share: float) -> list[str]:
 
 
 def rest_rows() -> list[list[str]]:
+    """The rest study's rows: each variant on the column at every share of :data:`DISORDER`, then on the blocks."""
     rows = []
     for variant in VARIANTS:
         for share in DISORDER:
