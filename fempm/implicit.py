@@ -321,6 +321,10 @@ class ImplicitSolver(Stepper):
         if self.check_energy and state.get("energy"):
             self.check_energy.start, self.check_energy.lowest = state["energy"]
 
+    def resume_point(self):
+        """After a checkpoint the linear solver sets a kept multigrid cycle up afresh, as a resumed run does."""
+        self.system.linear_solver.renew_preconditioner()
+
     def save(self):
         """The particles, the walls' stop count and the energy watch's lowest energy."""
         return (self.particles.state(), self.walls.stops, self.check_energy.lowest if self.check_energy else None,

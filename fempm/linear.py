@@ -35,6 +35,12 @@ them. Two sets of options are named here:
   ``fieldsplit_u_pc_type = "gamg"``; an inner Krylov solve of a block makes the outer solver FGMRES
   (:func:`iterative_options`).
 
+On one rank a multigrid cycle on S is set up when the blocks get a new pattern and kept while they keep
+it (:meth:`LinearSolver.solve`): S's values change from step to step, but a cycle one step old
+preconditions the same iteration to the same tolerance in about as many iterations, and its set-up is
+a large share of a solve. A run renews it after each checkpoint (:meth:`LinearSolver.renew_preconditioner`),
+where a resumed run sets it up afresh, so that the two go on bit for bit alike.
+
 The field split needs the fields of the interleaved dofs; a solver given ``fields``
 (e.g. ``{"u": 2, "p": 1}``) numbers the free dofs field by field on each rank and takes each
 block of the split straight from the assembled matrix into a ``MATNEST``, the operator itself
@@ -86,6 +92,8 @@ EXACT = {
     "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
     "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "lu",
 }
+#: PETSc's multigrid preconditioners: a cycle on S is kept while the blocks keep their pattern (LinearSolver)
+_MULTIGRID = ("gamg", "hypre", "ml", "mg")
 #: Free dofs above which S's LU is MUMPS's rather than PETSc's own.
 SMALL_SYSTEM = 1500
 #: Free dofs above which S is solved by a multigrid cycle rather than LU.
@@ -204,6 +212,7 @@ class LinearSolver:
         self._previous = None
         self._restored_seed = None  # a resumed run's blocks' seed, for its first solve (pattern_seed)
         self.reuses = 0  # solves that kept the last one's pattern
+        self._renew = False  # the next solve sets the solver up afresh, as a resumed run does (renew_preconditioner)
 
     @property
     def options(self) -> dict:
@@ -233,7 +242,8 @@ class LinearSolver:
         if self.nests_blocks:
             return self._solve_nest(A, b, free, x)
         previous = self._previous
-        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
+        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free) and not self._renew
+        self._renew = False
         if self.comm.size > 1:
             same = self.comm.allreduce(same, op=MPI.LAND)
         if same:  # the same block of the same matrix: its pattern, so the set-up's symbolic part, stays
@@ -253,7 +263,8 @@ class LinearSolver:
         numbered field by field on each rank, each block ``A[free_i, free_j]`` extracted once (into the
         last solve's storage while ``A`` and ``free`` stay)."""
         previous = self._previous
-        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free)
+        same = previous is not None and previous[0] is A and np.array_equal(previous[1], free) and not self._renew
+        self._renew = False
         same = self.comm.allreduce(same, op=MPI.LAND)
         if same:
             order, rows, nest = previous[2], previous[3], previous[4]
@@ -359,12 +370,16 @@ class LinearSolver:
         pattern (and the Schur complement's LU package stays) only the values are taken."""
         previous = self._previous
         package = schur_factor_options(len(free)) if self.exact_schur else {}
+        kept = False
         if previous is not None and previous[0] is A and previous[2] == package and previous[3].covers(free):
             blocks = previous[3]
             blocks.refill(free)
             self.reuses += 1
+            if self._renew:  # as a resumed run's first solve on these blocks: the solver set up afresh
+                self._set_up(blocks)
+            else:
+                kept = self._keep_multigrid(True)
         else:
-            self.ksp.reset()
             seed, self._restored_seed = self._restored_seed, None  # a resumed run's, for its first solve
             if previous is not None and isinstance(previous[3], FreeBlocks):
                 if previous[0] is not A:  # another matrix (rows near the water, widened): the same pattern
@@ -372,14 +387,16 @@ class LinearSolver:
                 previous[3].destroy()
             blocks = self._new_blocks(A.getAttr("fempm_grid_matrix"), free, package, seed)
             self._previous = (A, free.copy(), package, blocks)
-            self.ksp.setOperators(blocks.nest)
-            pc = self.ksp.getPC()
-            pc.setFieldSplitIS(*blocks.index_sets)
-            pc.setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, blocks.schur)
+            self._set_up(blocks)
         b_free, x_free = blocks.vectors
         blocks.restrict(b.getArray(readonly=True), b_free.getArray())
         x_free.zeroEntries()  # as a new vector (a guess kept from the last solve would be another start)
         reason = self._ksp_solve(b_free, x_free, len(free))
+        if reason < 0 and kept:  # the kept cycle did not do: once more with one set up for this S
+            self._keep_multigrid(False)
+            x_free.zeroEntries()
+            reason = self._ksp_solve(b_free, x_free, len(free))
+        self._renew = False
         values = np.zeros(b.getLocalSize())
         if reason < 0 and self.exact_schur:  # LU of the free block in the grid's order, as without blocks
             index_set = PETSc.IS().createGeneral(free, comm=self.comm)
@@ -396,6 +413,29 @@ class LinearSolver:
             x = b.duplicate()
         x.setArray(values)
         return x
+
+    def _set_up(self, blocks: FreeBlocks):
+        """The KSP reset and given ``blocks``: its next solve sets everything up, as a new solver's first does."""
+        self.ksp.reset()
+        self.ksp.setOperators(blocks.nest)
+        pc = self.ksp.getPC()
+        pc.setFieldSplitIS(*blocks.index_sets)
+        pc.setFieldSplitSchurPreType(PETSc.PC.FieldSplitSchurPreType.USER, blocks.schur)
+
+    def renew_preconditioner(self):
+        """Set the solver up afresh at the next solve, as a run resumed here does at its first (called after
+        each checkpoint, :meth:`fempm.stepper.Stepper.resume_point`): a kept multigrid cycle, and whatever
+        PETSc's set-ups carry from one to the next, would otherwise part the two runs in the last bits."""
+        self._renew = True
+
+    def _keep_multigrid(self, keep: bool) -> bool:
+        """Whether this solve keeps the Schur complement's preconditioner from its last set-up: only a
+        multigrid cycle, and only if ``keep`` (an LU of the last S is no preconditioner of this one: a dof
+        freed or held within the pattern spoils it)."""
+        schur = self.ksp.getPC().getFieldSplitSubKSP()[-1]
+        keep = keep and schur.getPC().getType() in _MULTIGRID
+        schur.getPC().setReusePreconditioner(keep)
+        return keep
 
     def _new_blocks(self, grid_matrix, free: np.ndarray, package: dict, seed: np.ndarray | None) -> FreeBlocks:
         """Blocks for ``free``: padded around ``seed`` (a resumed run's, or the last blocks' on another

@@ -70,6 +70,7 @@ def write_checkpoint(folder: Path, solver, recorder, scene_text: str):
         except OutputError as e:
             error = str(e)
     agree(comm, error)
+    solver.resume_point()
 
 
 def read_checkpoint(folder: str | Path, comm) -> Checkpoint:

@@ -151,6 +151,10 @@ class Stepper:
         self._previous = state.get("previous", self._previous)
         self.retries = [tuple(r) for r in state.get("retries", [])]
 
+    def resume_point(self):
+        """A checkpoint was just written: from here the run goes on as one resumed from it would. Nothing to
+        do unless the scheme keeps what a checkpoint does not hold."""
+
     # -- what a scheme provides ----------------------------------------------------------------
     def advance(self, dt: float):
         """One step of size ``dt``; raises :class:`~fempm.linear.SolveFailed` or
