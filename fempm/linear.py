@@ -213,6 +213,7 @@ class LinearSolver:
         self._restored_seed = None  # a resumed run's blocks' seed, for its first solve (pattern_seed)
         self.reuses = 0  # solves that kept the last one's pattern
         self._renew = False  # the next solve sets the solver up afresh, as a resumed run does (renew_preconditioner)
+        self._schur_pc = None  # the blocks' solver of S if a multigrid cycle, else False; None: not yet looked at
 
     @property
     def options(self) -> dict:
@@ -417,6 +418,7 @@ class LinearSolver:
     def _set_up(self, blocks: FreeBlocks):
         """The KSP reset and given ``blocks``: its next solve sets everything up, as a new solver's first does."""
         self.ksp.reset()
+        self._schur_pc = None
         self.ksp.setOperators(blocks.nest)
         pc = self.ksp.getPC()
         pc.setFieldSplitIS(*blocks.index_sets)
@@ -432,9 +434,12 @@ class LinearSolver:
         """Whether this solve keeps the Schur complement's preconditioner from its last set-up: only a
         multigrid cycle, and only if ``keep`` (an LU of the last S is no preconditioner of this one: a dof
         freed or held within the pattern spoils it)."""
-        schur = self.ksp.getPC().getFieldSplitSubKSP()[-1]
-        keep = keep and schur.getPC().getType() in _MULTIGRID
-        schur.getPC().setReusePreconditioner(keep)
+        if self._schur_pc is None:  # the split's solver of S, as its first set-up on these blocks made it
+            pc = self.ksp.getPC().getFieldSplitSubKSP()[-1].getPC()
+            self._schur_pc = pc if pc.getType() in _MULTIGRID else False
+        if self._schur_pc is False:
+            return False
+        self._schur_pc.setReusePreconditioner(keep)
         return keep
 
     def _new_blocks(self, grid_matrix, free: np.ndarray, package: dict, seed: np.ndarray | None) -> FreeBlocks:
