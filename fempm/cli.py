@@ -14,8 +14,10 @@ here with ``--forms PATH``.
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
+import threading
 
 from mpi4py import MPI
 
@@ -40,7 +42,26 @@ class Interrupted(BaseException):
 
 
 def _interrupt(signum, frame):
+    """Raise :class:`Interrupted`, or, where the exception would be lost, take the signal again shortly.
+
+    numba compiles through llvmlite, which calls back into Python from C; an exception raised in such a
+    callback is printed and dropped at its C boundary, and the run went on to its end. There the signal
+    is sent again 10 ms later, by when the compiler is back in Python's own frames (or the run's own
+    handling, :class:`fempm.restart.StopSignals`, has taken it over).
+    """
+    if _inside_llvmlite(frame):
+        threading.Timer(0.01, os.kill, (os.getpid(), signum)).start()
+        return
     raise Interrupted(signum)
+
+
+def _inside_llvmlite(frame) -> bool:
+    """Whether ``frame`` or one of its callers is llvmlite's Python code."""
+    while frame is not None:
+        if f"{os.sep}llvmlite{os.sep}" in frame.f_code.co_filename:
+            return True
+        frame = frame.f_back
+    return False
 
 
 class _Parser(argparse.ArgumentParser):
