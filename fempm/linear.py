@@ -58,7 +58,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from fempm.errors import InputError
-from fempm.schur import FreeBlocks
+from fempm.schur import PATTERN_MARGIN, FreeBlocks
 
 __all__ = ["DIRECT", "EXACT", "ITERATIVE", "LARGE_SYSTEM", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
            "direct_options", "iterative_options", "schur_factor_options", "set_options", "writing_option"]
@@ -92,12 +92,23 @@ EXACT = {
     "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
     "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "lu",
 }
-#: PETSc's multigrid preconditioners: a cycle on S is kept while the blocks keep their pattern (LinearSolver)
-_MULTIGRID = ("gamg", "hypre", "ml", "mg")
 #: Free dofs above which S's LU is MUMPS's rather than PETSc's own.
 SMALL_SYSTEM = 1500
 #: Free dofs above which S is solved by a multigrid cycle rather than LU.
 LARGE_SYSTEM = 4000
+#: PETSc's multigrid preconditioners: a cycle on S is kept while the blocks keep their pattern (LinearSolver)
+_MULTIGRID = ("gamg", "hypre", "ml", "mg")
+#: Functions by which the blocks' pattern reaches beyond the free dofs' above LARGE_SYSTEM of them (one below,
+#: fempm.schur.PATTERN_MARGIN): where S's cycle is kept while the pattern stays, a wider one lasts more steps.
+WIDE_PATTERN_MARGIN = 2
+
+
+def _pattern_margin(seed_dofs: int) -> int:
+    """The blocks' margin about a seed of ``seed_dofs`` free dofs (a function of the seed alone, so that a
+    resumed run pads its restored seed as the uninterrupted run did)."""
+    return WIDE_PATTERN_MARGIN if seed_dofs > LARGE_SYSTEM else PATTERN_MARGIN
+
+
 _SCHUR_FACTOR_NAMES = ("fieldsplit_p_pc_factor_mat_solver_type", "fieldsplit_p_pc_factor_mat_ordering_type",
                        "fieldsplit_p_mat_mumps_icntl_7")
 
@@ -447,11 +458,11 @@ class LinearSolver:
         matrix) if those would have been kept (the seed's package, the free dofs inside), else
         around ``free``."""
         if seed is not None and (schur_factor_options(len(seed)) if self.exact_schur else {}) == package:
-            blocks = FreeBlocks(grid_matrix, free, self.fields, seed)
+            blocks = FreeBlocks(grid_matrix, free, self.fields, seed, _pattern_margin(len(seed)))
             if blocks.covers(free):
                 return blocks
             blocks.destroy()
-        return FreeBlocks(grid_matrix, free, self.fields)
+        return FreeBlocks(grid_matrix, free, self.fields, margin=_pattern_margin(len(free)))
 
     def _solve_by_lu(self, A: PETSc.Mat, b: PETSc.Vec, x: PETSc.Vec) -> int:
         """Solve by MUMPS LU (:data:`DIRECT`, set here, not from the options); its converged reason."""

@@ -7,8 +7,8 @@ sparse product, all again whenever the free dofs change (nearly every step). Her
 ``A00, A01, A10, A11`` (velocity dofs first, then pressure, each in increasing order) and ``S``
 are cut straight from the grid matrix's CSR arrays (:mod:`fempm.matrix`) in one pass each.
 
-The blocks' pattern is that of a *padded* set of dofs: those of the functions within
-:data:`PATTERN_MARGIN` functions of a free one (the *seed*). A dof of the pattern that is not free
+The blocks' pattern is that of a *padded* set of dofs: those of the functions within a margin
+(:data:`PATTERN_MARGIN` functions by default) of a free one (the *seed*). A dof of the pattern that is not free
 this step has an identity row and column (its solution is zero, and the free dofs' equations are
 those of the free block), so while the free dofs stay inside the pattern (the water moves a cell
 in several steps) a solve takes only new values, and the solver keeps its orderings and symbolic
@@ -249,6 +249,7 @@ class FreeBlocks:
         free: the free dofs (global numbers, increasing) whose values the blocks take.
         fields: components per field of the interleaved dofs: a velocity of two, then one more.
         seed: the free dofs the pattern is padded around (default ``free``).
+        margin: functions by which the pattern reaches beyond the seed's.
 
     Attributes:
         nest: the PETSc ``MATNEST`` ``[[A00, A01], [A10, A11]]``.
@@ -258,14 +259,15 @@ class FreeBlocks:
         seed: as given.
     """
 
-    def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int], seed: np.ndarray | None = None):
+    def __init__(self, grid_matrix, free: np.ndarray, fields: dict[str, int], seed: np.ndarray | None = None,
+                 margin: int = PATTERN_MARGIN):
         self.grid_matrix, self.seed = grid_matrix, np.asarray(free if seed is None else seed, dtype=np.int64)
         lay, space = grid_matrix.layout, grid_matrix.space
         names = list(fields)
         if len(fields) != 2 or fields[names[0]] != 2:
             raise ValueError(f"the blocks need a two-component field and another, not {fields}")
         field_of_component = np.repeat(np.arange(2), [fields[names[0]], fields[names[1]]]).astype(np.int64)
-        near = _near(self.seed, space.bs, space.basis.nfx, space.basis.nfy, PATTERN_MARGIN)
+        near = _near(self.seed, space.bs, space.basis.nfx, space.basis.nfy, margin)
         pattern = (space.bs * np.flatnonzero(near)[:, None] + np.arange(space.bs)).ravel()  # the dofs, increasing
         field, position, rows0, rows1 = _numbering(pattern, field_of_component, lay.num_owned_rows)
         self._field = field
