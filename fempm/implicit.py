@@ -322,7 +322,7 @@ class ImplicitSolver(Stepper):
             self.check_energy.start, self.check_energy.lowest = state["energy"]
 
     def resume_point(self):
-        """After a checkpoint the linear solver sets a kept multigrid cycle up afresh, as a resumed run does."""
+        """After a checkpoint the linear solver is set up afresh at its next solve, as a resumed run's is."""
         self.system.linear_solver.renew_preconditioner()
 
     def save(self):
