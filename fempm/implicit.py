@@ -138,11 +138,11 @@ class ImplicitSolver(Stepper):
         self._g2p = GridFunction(Space(basis, {"du": 2, "dv": 2, "da": 2, "v": 2, "a": 2, "p": 1, "held": 2}), "g2p")
         self._held = GridFunction(Space(basis, {"held": 2}), "held")  # 1 where a step held at rest (project)
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
-        self._deep_water = DeepWater(s.scalar_space)
+        walls = physics.wall_conditions()
+        self._deep_water = DeepWater(s.scalar_space, [side for side in SIDES if walls[side] in ("outflow", "open")])
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
-        walls = physics.wall_conditions()
         self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES],
                                            scheme.shifting_keeps_angular_momentum)
                           if scheme.shifting > 0 else None)
@@ -241,8 +241,11 @@ class ImplicitSolver(Stepper):
         p2g = transfer.project_state(p, self.scheme.transfer, self._p2g)
         rho = s.fields["smoothed_density"].values
         rho[:] = transfer.smoothed_density(p2g.field("m"), self._integrals[:, None])
-        if s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's (fempm.density)
-            s.fields["deep"].values[:, 0] = self._deep_water(rho[:, 0] / self._reference_density)
+        phi = rho[:, 0] / self._reference_density  # the wet fraction (fempm.density)
+        if s.constants["by_parts"]:  # the pressure's work by parts, and the volume correction's deep water
+            s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0] = self._deep_water.masks(phi)
+        elif s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's deep water
+            s.fields["deep"].values[:, 0] = self._deep_water(phi)
         keep = np.empty((s.scalar_space.numbering.num_owned, s.space.bs), dtype=np.bool_)
         _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
                     self._reference_density, c.min_support_fraction, c.min_pressure_support,

@@ -16,7 +16,7 @@ import numpy as np
 
 from fempm.errors import InputError
 
-__all__ = ["Controls", "INITIAL_ACCELERATIONS", "PRESSURE_QUADRATURES", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
+__all__ = ["Controls", "INITIAL_ACCELERATIONS", "PRESSURE_QUADRATURES", "PRESSURE_WORKS", "Physics", "SIDES", "Scheme", "TRANSFERS", "WALLS"]
 
 SIDES = ("left", "right", "bottom", "top")
 #: The conditions a side may have (see :class:`Physics`).
@@ -25,6 +25,8 @@ WALLS = ("slip", "no-slip", "outflow", "open")
 TRANSFERS = ("flip", "apic", "tpic", "affine-flip")
 #: where the pressure's terms are integrated (fempm.pressure_points)
 PRESSURE_QUADRATURES = ("particles", "gauss")
+#: how the momentum balance takes the pressure's work (:attr:`Scheme.pressure_work`)
+PRESSURE_WORKS = ("divergence", "by-parts")
 #: how the implicit step gets Newmark's a_0 (:attr:`Scheme.initial_acceleration`)
 INITIAL_ACCELERATIONS = ("solved", "given")
 #: ``Controls.matrix_region = "auto"`` keeps rows only near the water above this many cells.
@@ -150,6 +152,10 @@ class Scheme:
             continuity, one of :data:`PRESSURE_QUADRATURES`: ``particles`` (every term there, method.md)
             or ``gauss`` (the Gauss points of the cells the water reaches, :mod:`fempm.pressure_points`,
             with ``forms/gauss_pressure.py`` in place of the default forms; one density for all material).
+        pressure_work: how the momentum balance takes the pressure's work, one of :data:`PRESSURE_WORKS`:
+            ``divergence`` (``-p div w``, method.md) or ``by-parts`` (``w . grad p`` where the water is deep,
+            the forms' constant ``by_parts``; ``forms/incompressible.py``, ``pressure_work``): water at rest
+            then balances gravity at every particle, wherever the particles stand.
     """
 
     dt: float = 1.0e-3
@@ -170,6 +176,7 @@ class Scheme:
     forms: str | Path = "incompressible"
     initial_acceleration: str = "solved"
     pressure_quadrature: str = "particles"
+    pressure_work: str = "divergence"
 
     def step_forms(self) -> str | Path:
         """The forms a step compiles: :attr:`forms`; with the Gauss points' quadrature, the shipped
@@ -198,6 +205,8 @@ class Scheme:
             raise InputError(f"transfer must be one of {TRANSFERS}, got {self.transfer!r}")
         if self.pressure_quadrature not in PRESSURE_QUADRATURES:
             raise InputError(f"pressure_quadrature must be one of {PRESSURE_QUADRATURES}, got {self.pressure_quadrature!r}")
+        if self.pressure_work not in PRESSURE_WORKS:
+            raise InputError(f"pressure_work must be one of {PRESSURE_WORKS}, got {self.pressure_work!r}")
         if not (np.isfinite(self.pic_rate) and self.pic_rate >= 0):
             raise InputError(f"pic_rate must be a finite number >= 0 (1/s), got {self.pic_rate}")
         if not (np.isfinite(self.noise_rate) and self.noise_rate >= 0):

@@ -36,7 +36,7 @@ from fempm.expressions import Expression
 from fempm.formsfile import forms_path, shipped_forms
 from fempm.grid import cell_counts, cell_shares, last_widths, square_cell_size, touches_only
 from fempm.linear import LARGE_SYSTEM
-from fempm.options import FLUID_REGION_CELLS, PRESSURE_QUADRATURES, TRANSFERS, Scheme
+from fempm.options import FLUID_REGION_CELLS, PRESSURE_QUADRATURES, PRESSURE_WORKS, TRANSFERS, Scheme
 from fempm.particles import Polygon, Rectangle, sub_cell_centres
 from fempm.values import (BadValue, boolean, cell_count_pair, cell_list, choice, finite, folder_name, forms_name,
                           fraction, in_range, key, non_negative, petsc_table, point, points, positive, range_pair,
@@ -188,6 +188,7 @@ class Solver:
     pressure_limit: float | None = key(positive, None, unit="Pa")
     forms: str = key(forms_name, "incompressible")
     pressure_quadrature: str = key(choice(*PRESSURE_QUADRATURES), Scheme.pressure_quadrature)
+    pressure_work: str = key(choice(*PRESSURE_WORKS), Scheme.pressure_work)
     petsc: dict = key(petsc_table, {})
 
 
@@ -369,6 +370,9 @@ def _parse(data: dict, source: Path, forms: str | Path | None) -> Scene:
     elif solver.forms == "gauss_pressure" and solver.pressure_quadrature != "gauss":
         raise InputError("solver.forms = 'gauss_pressure' integrates the pressure's terms at Gauss points: set "
                          "solver.pressure_quadrature = 'gauss'")
+    if solver.pressure_work == "by-parts" and solver.pressure_quadrature == "gauss":
+        raise InputError("solver.pressure_work = 'by-parts' is a form of the particles' quadrature: with "
+                         "solver.pressure_quadrature = 'gauss' the pressure's work is at the Gauss points already")
     _check_folder(values["output"].folder)
     return Scene(**values)
 

@@ -59,7 +59,8 @@ def build_solver(scene: Scene, comm=MPI.COMM_WORLD) -> ImplicitSolver:
     scheme = Scheme(dt=scene.time.dt, courant=scene.time.courant, beta=sv.newmark_beta, gamma=sv.newmark_gamma, alpha=sv.volume_correction,
                     alpha_rate=sv.volume_correction_rate,
                     surface_aware=sv.surface_aware, shifting=sv.shifting, shifting_keeps_angular_momentum=sv.shifting_keeps_angular_momentum, pspg=sv.pspg, transfer=sv.transfer, pic_blend=sv.pic_blend,
-                    pic_rate=sv.pic_rate, noise_rate=sv.noise_rate, rest_pic_rate=sv.rest_pic_rate, forms=sv.forms, pressure_quadrature=sv.pressure_quadrature)
+                    pic_rate=sv.pic_rate, noise_rate=sv.noise_rate, rest_pic_rate=sv.rest_pic_rate, forms=sv.forms, pressure_quadrature=sv.pressure_quadrature,
+                    pressure_work=sv.pressure_work)
     controls = Controls(petsc_options=petsc, pressure_limit=pressure_limit(scene, particles))
     # The forms are compiled here: their mistakes name the file, and a stop request waits until the
     # compiler is done (stopped half-way, FFCx leaves its cache waiting for the compile).

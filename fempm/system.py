@@ -8,6 +8,8 @@ UFL derives (:class:`StepForms`, compiled once).
 
 from __future__ import annotations
 
+import functools
+
 from collections.abc import Callable
 
 import numba
@@ -53,6 +55,14 @@ class StepForms:
         self.jacobian = compile(lambda s: ufl.derivative(forms.residual(s), s.grid("U")))
         unknown = next(c for c, (kind, name) in self.jacobian.symbols.used.items() if name == "U")
         self.linear = unknown not in self.jacobian.expanded_form.coefficients()
+        excess = getattr(forms, "wall_force_excess", None)
+        self._wall_force_excess = (lambda: compile(excess)) if callable(excess) else None
+
+    @functools.cached_property
+    def wall_force_excess(self):
+        """The forms file's ``wall_force_excess`` compiled (on first use), or None: what the residual at a
+        held wall dof holds beyond the walls' force on the water (``forms/incompressible.py``)."""
+        return None if self._wall_force_excess is None else self._wall_force_excess()
 
     def assemble(self, particles, J=None, R=None):
         """The Jacobian and the residual (into ``J`` and ``R`` if given), in one pass over the particles
@@ -98,13 +108,14 @@ class GridSystem:
             "grid_acceleration": GridFunction(self.vector_space, "grid_acceleration"),
             "smoothed_density": GridFunction(self.scalar_space, "smoothed_density"),
             "deep": GridFunction(self.scalar_space, "deep"),  # fempm.density.DeepWater
+            "by_parts": GridFunction(self.scalar_space, "by_parts"),  # fempm.density.DeepWater; 0 on a fixed grid
         }
         self.velocity = GridFunction(self.vector_space, "velocity")
         self.pressure = GridFunction(self.scalar_space, "pressure")
         self.constants = {
             "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
             "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.volume_share(scheme.dt), "pspg": float(scheme.pspg),
-            "surface_aware": float(scheme.surface_aware),
+            "surface_aware": float(scheme.surface_aware), "by_parts": float(scheme.pressure_work == "by-parts"),
             "convection": float(convection), "density": float(density),
         }
         self.walls = Walls(self.space, physics)
@@ -173,12 +184,15 @@ class GridSystem:
                               f"(|R| = {norm:.3e}, |R0| = {r0:.3e})")
 
     def reaction(self, forms: StepForms, particles=None, rows: np.ndarray | None = None) -> np.ndarray:
-        """The residual ``R(U)`` of the solved step at the owned dofs ``rows`` (default all): on a held
-        dof the force its constraint exerts (one-sided walls, :meth:`fempm.walls.Walls.update`). For
-        forms affine in U ``R(U_0) + J delta`` from the solve's own vectors, else assembled again."""
+        """The residual ``R(U)`` of the solved step at the owned dofs ``rows`` (default all), less the forms'
+        ``wall_force_excess`` with the pressure's work by parts: on a held dof the force its constraint exerts (one-sided
+        walls, :meth:`fempm.walls.Walls.update`). For forms affine in U ``R(U_0) + J delta`` from the
+        solve's own vectors, else assembled again."""
         rows = np.arange(self.space.num_owned_dofs) if rows is None else np.asarray(rows, dtype=np.int64)
+        excess = forms.wall_force_excess if self.constants["by_parts"] else None
+        excess = 0.0 if excess is None else excess.assemble_vector(particles).array[rows]
         if not forms.linear:
-            return forms.residual.assemble_vector(particles, self._R).array[rows]
+            return forms.residual.assemble_vector(particles, self._R).array[rows] - excess
         # the solve scaled R(U_0) by -1; delta = U - U_0
         gm = self._delta_of.getAttr("fempm_grid_matrix")
         product = gm.multiply(self._delta.getArray(readonly=True), rows) if gm is not None else None
@@ -186,7 +200,7 @@ class GridSystem:
             whole = self._delta_of.createVecLeft()
             self._delta_of.mult(self._delta, whole)
             product = whole.getArray(readonly=True)[rows]
-        return product - self._R.array[rows]
+        return product - self._R.array[rows] - excess
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]

@@ -196,13 +196,54 @@ def momentum(s):
     v_n, a_n = s.grid("grid_velocity"), s.grid("grid_acceleration")
     a_new = newmark.acceleration(du, v_n, a_n, dt, beta)  # the Newmark update of method.md,
     v_new = newmark.velocity(du, v_n, a_n, dt, beta, gamma, a_new=a_new)  # see fempm/newmark.py
-    stress = -p * end_divergence(s, w)  # on the end-of-step configuration, see end_map()
+    stress = pressure_work(s, p, w)  # on the end-of-step configuration, see end_map()
     if switched_on(mu):
         stress = stress + viscous_work(s, mu, v_new, w)
     carried = convection(s, v_new)
     if carried is not None:
         stress = stress + rho * ufl.inner(carried, w)
     return rho * ufl.inner(a_new - g, w) * s.dx_lumped + stress * s.dx
+
+
+def pressure_work(s, p, w):
+    """The pressure's work in the momentum balance, ``-p J* div_x w`` (eq. 1's ``-B^T p``; see
+    :func:`end_divergence`); with ``by_parts`` = 1 (``solver.pressure_work = "by-parts"``) taken by parts
+    with the weight ``D`` (the grid function ``by_parts``, ``fempm.density``)::
+
+        -(1 - D) p J* div_x w + w . cof F* grad(D p)  =  -p J* div_x w + by_parts_excess
+
+    Where ``D p`` vanishes on the water's edge the two integrate alike (the excess is a divergence, whose
+    integral is ``D p w . n`` on the walls, zero for a free dof). At the particles they differ: with
+    ``w . grad p`` water at rest (``grad p = rho g``) balances gravity at every particle wherever the
+    particles stand, where ``-p div w - rho g . w`` leaves the hydrostatic pressure times the particle
+    quadrature's error in ``div(p w)``: a force that grows with the depth and moves the particles that
+    make it (a column whose particles were moved by 1e-4 of their spacing grew a circulation from its
+    bottom corner to 0.2 m/s; docs/notes-accuracy.md). ``D`` is 1 in the water and falls to 0 at its
+    free surface, where the pressure is small, and beside obstacles and open sides, whose faces the
+    basis does not resolve; on a held wall dof the by-parts part leaves out the pressure's push on the
+    wall, which :func:`wall_force_excess` gives back there.
+    """
+    work = -p * end_divergence(s, w)
+    return work + by_parts_excess(s, p, w) if switched_on(s.constant("by_parts")) else work
+
+
+def by_parts_excess(s, p, w):
+    """``D p J* div_x w + w . cof F* grad(D p)``, the divergence of ``D p cof F*^T w`` (Piola's identity,
+    ``div cof F* = 0``): what taking the pressure's work by parts with the weight ``D`` adds to
+    ``-p J* div_x w`` (see :func:`pressure_work`)."""
+    F = end_map(s)
+    C = ufl.Identity(2) if F is None else ufl.cofac(F)
+    D = s.grid("by_parts")
+    return D * p * end_divergence(s, w) + ufl.inner(w, ufl.dot(C, ufl.grad(D * p)))
+
+
+def wall_force_excess(s):
+    """The residual's excess at a held wall dof over the walls' force on the water (one-sided walls,
+    ``fempm.walls``, subtract it there): :func:`by_parts_excess`, ``div(D p w)``, whose integral over the
+    water is the pressure's push ``D p w . n`` on the walls."""
+    _, p = ufl.split(s.grid("U"))
+    w, _ = s.test
+    return by_parts_excess(s, p, w) * s.dx
 
 
 #: crowding the volume correction leaves alone, a share of the density (see continuity)
