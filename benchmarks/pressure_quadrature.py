@@ -11,6 +11,9 @@ stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weighti
 
 * ``gauss (shipped: pressure_quadrature)``: the ``sharp`` one as fempm ships it, ``Scheme.pressure_quadrature =
   "gauss"`` (``fempm.pressure_points``, ``forms/gauss_pressure.py``; its cells: where the share may be above zero);
+* ``particles, work by parts (shipped: pressure_work)``: no Gauss points; every term at the particles, the
+  momentum's pressure work ``w . grad p`` where the water is deep (``Scheme.pressure_work = "by-parts"``,
+  ``forms/incompressible.py``, ``pressure_work``);
 * ``smooth``: the smoothed fraction of water ``rho~ / rho`` (eq. 2) at the point, clipped to 1,
   with PSPG's residual that of the weighted terms, ``grad(wet p) / wet``;
 * ``smooth, PSPG uncorrected``: the same with PSPG's residual as shipped;
@@ -105,9 +108,12 @@ class Blend:
 
 #: the shipped option, ``Scheme.pressure_quadrature = "gauss"`` (``fempm.pressure_points``, ``forms/gauss_pressure.py``)
 SHIPPED = "shipped"
+#: the shipped option ``Scheme.pressure_work = "by-parts"`` (every term at the particles, ``forms/incompressible.py``)
+BY_PARTS = "by-parts"
 WEIGHTINGS = {
     "particles": None,  # the shipped forms and quadrature
     "gauss (shipped: pressure_quadrature)": SHIPPED,
+    "particles, work by parts (shipped: pressure_work)": BY_PARTS,
     "smooth": Weighting("smooth", corrected=True),
     "smooth, PSPG uncorrected": Weighting("smooth"),
     "sharp": Weighting("smooth", sharpness=2.0, corrected=True),
@@ -256,13 +262,15 @@ def scene_solver(weighting: str, scene) -> ImplicitSolver:
 
 
 def _maker(w):
-    """The solver type of a weighting (``None``: the particles; :data:`SHIPPED`: ``pressure_quadrature = "gauss"``)."""
+    """The solver type of a weighting (``None``: the particles; :data:`SHIPPED`: ``pressure_quadrature = "gauss"``;
+    :data:`BY_PARTS`: ``pressure_work = "by-parts"``)."""
     if w is None:
         return ImplicitSolver
-    if w == SHIPPED:
+    if w in (SHIPPED, BY_PARTS):
+        option = {"pressure_quadrature": "gauss"} if w == SHIPPED else {"pressure_work": "by-parts"}
+
         def shipped(basis, particles, physics=None, scheme=None, controls=None):
-            return ImplicitSolver(basis, particles, physics,
-                                  dataclasses.replace(scheme or Scheme(), pressure_quadrature="gauss"), controls)
+            return ImplicitSolver(basis, particles, physics, dataclasses.replace(scheme or Scheme(), **option), controls)
         return shipped
     return functools.partial(BlendedPressure if isinstance(w, Blend) else GaussPressure, w)
 
