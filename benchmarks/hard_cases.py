@@ -6,6 +6,7 @@ each one's measures as a row and writes ``docs/hard-cases.md`` from ``templates/
 
     python benchmarks/hard_cases.py [--full] [--doc docs/hard-cases.md] [--case NAME ...]
     python benchmarks/hard_cases.py --pressure-quadrature gauss    # docs/hard-cases-gauss.md
+    python benchmarks/hard_cases.py --pressure-work by-parts       # docs/hard-cases-by-parts.md
 
 Default: the short versions the tests run in CI; ``--full``: the long ones too (hours: the
 40 s dam break at the seed's step among them).
@@ -21,16 +22,25 @@ from mpi4py import MPI
 import fempm  # noqa: F401  (imports dolfinx_solver before dolfinx and petsc4py)
 import pages
 from fempm.cases.hard import CASES, COLUMNS, Outcome, row, run_case
-from fempm.options import PRESSURE_QUADRATURES
+from fempm.options import PRESSURE_QUADRATURES, PRESSURE_WORKS
 
 
-def markdown(short: list[Outcome], full: list[Outcome], flags: str = "") -> str:
-    """``docs/hard-cases.md``: the cases, the tables, how they were made (``flags``: the command line's)."""
+#: an option's flag, page and note on its page
+OPTIONS = {
+    "gauss": (" --pressure-quadrature gauss", "hard-cases-gauss.md", " This page: the same cases with the pressure's "
+              "terms at Gauss points (`solver.pressure_quadrature = \"gauss\"`), which the tests do not assert on."),
+    "by-parts": (" --pressure-work by-parts", "hard-cases-by-parts.md", " This page: the same cases with the "
+                 "pressure's work by parts where the water is deep (`solver.pressure_work = \"by-parts\"`), which the "
+                 "tests do not assert on."),
+}
+
+
+def markdown(short: list[Outcome], full: list[Outcome], option: str | None = None) -> str:
+    """``docs/hard-cases.md``: the cases, the tables, how they were made (``option``: a key of :data:`OPTIONS`)."""
     cases = pages.table(["case", "set-up", "short (s)", "full (s)"],
                         ([c.name, c.what, f"{c.short:g}", f"{c.full:g}"] for c in CASES.values()))
     longer = f"\n## Full versions\n\n{pages.table(COLUMNS, map(row, full))}\n" if full else ""
-    note = (" This page: the same cases with the pressure's terms at Gauss points (`solver.pressure_quadrature = "
-            "\"gauss\"`), which the tests do not assert on." if flags else "")
+    flags, _, note = OPTIONS[option] if option else ("", "", "")
     return pages.fill("hard-cases.md", flags=(" --full" if full else "") + flags, note=note, ranks=MPI.COMM_WORLD.size, cases=cases,
                       short=pages.table(COLUMNS, map(row, short)), full=longer, **pages.provenance())
 
@@ -40,23 +50,28 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--full", action="store_true", help="the long versions too")
     parser.add_argument("--doc", type=Path, default=None, help="markdown output (default docs/hard-cases.md, "
-                        "with --pressure-quadrature gauss docs/hard-cases-gauss.md)")
+                        "with an option docs/hard-cases-gauss.md or docs/hard-cases-by-parts.md)")
     parser.add_argument("--pressure-quadrature", choices=PRESSURE_QUADRATURES, default="particles",
                         help="where the pressure's terms are integrated (solver.pressure_quadrature)")
+    parser.add_argument("--pressure-work", choices=PRESSURE_WORKS, default="divergence",
+                        help="how the momentum takes the pressure's work (solver.pressure_work)")
     parser.add_argument("--case", nargs="+", choices=list(CASES), default=list(CASES), help="only these cases")
     args = parser.parse_args(argv)
+    if args.pressure_quadrature == "gauss" and args.pressure_work == "by-parts":
+        parser.error("--pressure-work by-parts is a form of the particles' quadrature: not with --pressure-quadrature gauss")
     outcomes = {False: [], True: []}
     for full in (False, True) if args.full else (False,):
         for name in args.case:
-            outcomes[full].append(run_case(name, full, pressure_quadrature=args.pressure_quadrature))
+            outcomes[full].append(run_case(name, full, pressure_quadrature=args.pressure_quadrature,
+                                           pressure_work=args.pressure_work))
             if MPI.COMM_WORLD.rank == 0:
                 print(f"{'full' if full else 'short'}: " + " | ".join(
                     f"{k}: {v}" for k, v in zip(COLUMNS, row(outcomes[full][-1]))), flush=True)
     if MPI.COMM_WORLD.rank == 0:
-        gauss = args.pressure_quadrature == "gauss"
-        text = markdown(outcomes[False], outcomes[True], " --pressure-quadrature gauss" if gauss else "")
+        option = "gauss" if args.pressure_quadrature == "gauss" else "by-parts" if args.pressure_work == "by-parts" else None
+        text = markdown(outcomes[False], outcomes[True], option)
         print(text)
-        pages.write(args.doc or pages.ROOT / "docs" / ("hard-cases-gauss.md" if gauss else "hard-cases.md"), text)
+        pages.write(args.doc or pages.ROOT / "docs" / (OPTIONS[option][1] if option else "hard-cases.md"), text)
 
 
 if __name__ == "__main__":

@@ -217,15 +217,17 @@ class Watch:
         )
 
 
-def run_case(name: str, full: bool = False, comm=MPI.COMM_WORLD, pressure_quadrature: str = "particles") -> Outcome:
-    """Build case ``name``, run it to its end time (short, or ``full``) and measure it; ``pressure_quadrature``:
-    the scheme's (:class:`fempm.options.Scheme`), the case's solver remade with it if another."""
+def run_case(name: str, full: bool = False, comm=MPI.COMM_WORLD, pressure_quadrature: str = "particles",
+             pressure_work: str = "divergence") -> Outcome:
+    """Build case ``name``, run it to its end time (short, or ``full``) and measure it; ``pressure_quadrature``,
+    ``pressure_work``: the scheme's (:class:`fempm.options.Scheme`), the case's solver remade with them if others."""
     case = CASES[name]
     end = case.full if full else case.short
     solver = (case.build_full if full and case.build_full else case.build)(comm)
-    if pressure_quadrature != solver.scheme.pressure_quadrature:
-        solver = ImplicitSolver(solver.basis, solver.particles, solver.physics,
-                                replace(solver.scheme, pressure_quadrature=pressure_quadrature), solver.controls)
+    options = {"pressure_quadrature": pressure_quadrature, "pressure_work": pressure_work}
+    if any(getattr(solver.scheme, key) != value for key, value in options.items()):
+        solver = ImplicitSolver(solver.basis, solver.particles, solver.physics, replace(solver.scheme, **options),
+                                solver.controls)
     watch = Watch(solver)
     run = advance(solver, end, watch)
     return watch.outcome(name, solver, end, run)
