@@ -1,6 +1,11 @@
-"""Small builders shared by the tests (particle layouts, scene texts and the forms under test)."""
+"""Small builders shared by the tests (particle layouts, scene texts, the forms under test, runs on 1 and 2 ranks)."""
 
+import dataclasses
+import os
 import re
+import subprocess
+import sys
+from pathlib import Path
 
 import basix
 import numpy as np
@@ -96,3 +101,28 @@ def resting_water(grid, width: float, depth: float, steps: int = 0, density: flo
     for _ in range(steps):
         solver.step()
     return solver
+
+
+def dam_break_on_1_and_2_ranks(tmp_path, **solver) -> dict[int, list[np.ndarray]]:
+    """The shipped scene cut to its first 100 steps at the seed's step, its ``[solver]`` changed by ``solver``, run by
+    ``fempm run`` on 1 and 2 ranks: per rank count, its ``front.csv`` and ``gauges.csv``, checked to have run."""
+    from fempm.cases import dambreak
+    from fempm.scene import Output, load_scene, to_toml
+
+    scene_path = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
+    mpirun = str(Path(sys.executable).parent / "mpirun")
+    runs = {}
+    for ranks in (1, 2):
+        folder = tmp_path / f"ranks{ranks}"
+        scene = dambreak.at_seed_setup(load_scene(scene_path, end_time=0.1))
+        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, **solver),
+                                    output=Output(folder=str(folder), progress=False))
+        scene_file = tmp_path / f"scene{ranks}.toml"
+        scene_file.write_text(to_toml(scene))
+        run = subprocess.run([mpirun, "-n", str(ranks), sys.executable, "-m", "fempm.cli", "run", str(scene_file)],
+                             capture_output=True, text=True, timeout=900, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        assert run.returncode == 0, run.stderr[-3000:]
+        runs[ranks] = [np.loadtxt(folder / name, delimiter=",", skiprows=2) for name in ("front.csv", "gauges.csv")]
+    front = runs[1][0]
+    assert front.shape == (101, 2) and front[-1, 1] - front[0, 1] > 0.02  # the front ran
+    return runs

@@ -3,9 +3,6 @@ forms/incompressible.py, ``pressure_work``; fempm/density.py, the weight ``by_pa
 rest from disordered particles, Taylor-Green's loss under refinement, the dam break's wall gauges, and the
 dam break on 1 and 2 ranks. The default (``"divergence"``) is the rest of the suite's."""
 
-import dataclasses
-import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -18,13 +15,12 @@ from fempm import density
 from fempm.cases import column, dambreak, vortices
 from fempm.errors import InputError
 from fempm.gauges import WetFraction
-from fempm.scene import Output, load_scene, to_toml
 from fempm.simulation import build_solver
+from helpers import dam_break_on_1_and_2_ranks
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import wall_pressure  # noqa: E402
 
-SCENE = Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml"
 L, H_CELL = column.WIDTH, column.WIDTH / 10
 BY_PARTS = {"solver.pressure_work": "by-parts"}
 
@@ -136,20 +132,7 @@ def test_by_parts_with_the_gauss_points_is_refused():
 def test_the_dam_break_by_parts_is_the_same_on_1_and_2_ranks(tmp_path):
     """The shipped scene cut to its first 100 steps at the seed's step, by parts: the front and the gauges
     agree on 1 and 2 ranks (the weight's sums over a function's cells are taken across ranks)."""
-    mpirun = str(Path(sys.executable).parent / "mpirun")
-    runs = {}
-    for ranks in (1, 2):
-        folder = tmp_path / f"ranks{ranks}"
-        scene = dambreak.at_seed_setup(load_scene(SCENE, end_time=0.1))
-        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, pressure_work="by-parts"),
-                                    output=Output(folder=str(folder), progress=False))
-        scene_file = tmp_path / f"scene{ranks}.toml"
-        scene_file.write_text(to_toml(scene))
-        run = subprocess.run([mpirun, "-n", str(ranks), sys.executable, "-m", "fempm.cli", "run", str(scene_file)],
-                             capture_output=True, text=True, timeout=900, env={**os.environ, "OMP_NUM_THREADS": "1"})
-        assert run.returncode == 0, run.stderr[-3000:]
-        runs[ranks] = [np.loadtxt(folder / name, delimiter=",", skiprows=2) for name in ("front.csv", "gauges.csv")]
+    runs = dam_break_on_1_and_2_ranks(tmp_path, pressure_work="by-parts")
     (front1, gauges1), (front2, gauges2) = runs[1], runs[2]
-    assert front1.shape == (101, 2) and front1[-1, 1] - front1[0, 1] > 0.02  # the front ran
     assert np.abs(front2 - front1).max() <= 1e-10
     assert np.nanmax(np.abs(gauges2 - gauges1)) <= 1e-6 * np.nanmax(np.abs(gauges1))
