@@ -9,7 +9,6 @@ UFL derives (:class:`StepForms`, compiled once).
 from __future__ import annotations
 
 import functools
-
 from collections.abc import Callable
 
 import numba

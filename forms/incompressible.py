@@ -17,11 +17,12 @@ What a form may use (see ``fempm.quadrature.Symbols``):
 * grid functions: ``U`` (the unknowns), ``grid_velocity`` v_n and
   ``grid_acceleration`` a_n (the particle values projected to the grid,
   ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2),
-  ``deep`` (1 where a function's support lies deep in the water, else 0; see :func:`continuity`);
+  ``deep`` (1 where a function's support lies deep in the water, else 0; see :func:`continuity`),
+  ``by_parts`` (the share of the pressure's work taken by parts, 0 to 1; see :func:`pressure_work`);
 * constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``density`` (the
   fluid's reference density), ``gravity``
   (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``surface_aware`` (1 or 0,
-  its density error, see :func:`continuity`), ``pspg`` (1 or 0),
+  its density error, see :func:`continuity`), ``by_parts`` (1 or 0, see :func:`pressure_work`), ``pspg`` (1 or 0),
   ``convection`` (1 on a fixed grid, see :func:`convection`; 0 in the MPM, whose
   grid moves with the material).
 
@@ -186,7 +187,8 @@ def momentum(s):
     many basis functions (it then gave meaningless nodal values at the free surface
     and particles crossing the walls); a consistent mass paired with particle-valued
     v_n amplified short waves every step. The free surface is traction-free as the
-    natural condition.
+    natural condition. The pressure's term is :func:`pressure_work` (by parts where the
+    water is deep with ``solver.pressure_work = "by-parts"``).
     """
     du, p = ufl.split(s.grid("U"))
     w, _ = s.test
