@@ -119,7 +119,8 @@ def test_the_dam_break_onto_a_block_at_its_own_step_keeps_every_particle_out_of_
                    "the column stays at rest (8.7e-5 m/s at 3 s). Also at fixed 1 ms and 3 ms steps, without the end-of-step "
                    "map (slower), without the volume correction, the shifting, the noise and rest shares, with either "
                    "normalisation of the smoothed density and with a direct solve; FLIP holds it to 4.5 s, the Gauss option "
-                   "keeps 1e-2 m/s (docs/notes-accuracy.md, 'Water at rest against an obstacle')")
+                   "keeps 1e-2 m/s, the pressure's work by parts 1.1e-2 m/s at 2 s (docs/still-water.md; "
+                   "docs/notes-accuracy.md, 'Water at rest against an obstacle')")
 def test_a_column_at_rest_against_a_block_stays_at_rest():
     """The dam break's column held by a block in place of the gate (the right three quarters of the tank
     blocked 30 cells high), with the shipped scene's step and solver."""

@@ -296,8 +296,10 @@ def test_column_stays_at_rest_for_14_s():
                    "1.2e-2 m/s at 6 s; by 1e-3: 0.11 m/s at 0.5 s; by 0.3, a flow's disorder: 0.2-0.4 m/s from 0.5 s on); "
                    "also at a fixed 1 ms step, without the end-of-step map (later), the shifting, the volume correction, "
                    "with PSPG's tau 4 or 1/4 times. FLIP holds this start (8e-5 m/s at 4 s) but not a flow's disorder "
-                   "(0.08-0.18 m/s), the Gauss option both (2.4e-4 m/s; 4e-3 to 9e-3 m/s): the particle quadrature of the "
-                   "pressure's terms with affine transfers (docs/notes-accuracy.md, 'Water at rest from a disordered start')")
+                   "(0.08-0.18 m/s), the Gauss option both (2.4e-4 m/s; 4e-3 to 9e-3 m/s), the pressure's work by parts "
+                   "this start (2.8e-4 m/s at 2 s, tests/test_pressure_work.py) but not a flow's disorder (1e-2 m/s): the "
+                   "hydrostatic pressure times the particle quadrature's error in div(p w) (docs/notes-accuracy.md, "
+                   "'Water at rest from a disordered start' and 'Where the disordered column's energy comes from')")
 def test_a_column_at_rest_from_slightly_disordered_particles_stays_at_rest():
     """The dam break's column in a tank as wide as it, the shipped scene's step and solver, its particles moved
     at random by at most 1e-4 of their spacing (0.73 micrometres): a start no flow ever leaves as exact as a lattice."""
