@@ -16,10 +16,14 @@ interpolated to the particles rippled the dam break's upper wall gauge more.
 The same pass over the cells gives the momentum's weight ``by_parts`` (``forms/incompressible.py``,
 ``pressure_work``): the share of the pressure's work taken by parts, ``w . grad p`` for ``-p div w``.
 The two forms integrate alike wherever that share times the pressure vanishes on the water's edge, so
-the share must fall to zero before the free surface; it is the product, over the cells of a
-function's support, of a ramp of ``phi`` at the cell's centre from 0 at :data:`BY_PARTS_NONE` to 1 at
-:data:`BY_PARTS_FULL`. A product rather than a switch: a share that jumps as ``phi`` crosses a level
-made the dam break's wall gauges ripple (a binary mask: 45-60 % of their mean against 2-4 %).
+the share must fall to zero at the free surface; it is the product, over the cells of a function's
+support, of a ramp of ``phi`` at the cell's centre. A product rather than a switch: a share that jumps
+as ``phi`` crosses a level made the dam break's wall gauges ripple (a binary mask: 45-60 % of their
+mean against 2-4 %). Where the water is still the ramp (:data:`BY_PARTS_STILL`) reaches the surface
+cell, whose pressure is nearly zero; where it moves (:data:`BY_PARTS_MOVING`, from :data:`STILL_SPEEDS`
+on) it stops a cell and a half below, since near a moving surface the pressure need not fall to zero
+within a cell (an impact, a jet: there a ramp to the surface cell stopped the dam break onto an
+obstacle and a landing sparse cloud).
 """
 
 from __future__ import annotations
@@ -29,14 +33,16 @@ import numpy as np
 
 from fempm.space import GridFunction, Space
 
-__all__ = ["BY_PARTS_FULL", "BY_PARTS_NONE", "DEEP", "DeepWater"]
+__all__ = ["BY_PARTS_MOVING", "BY_PARTS_STILL", "DEEP", "DeepWater", "STILL_SPEEDS"]
 
 #: a cell is deep inside the material when the wet fraction at its centre reaches this
 DEEP = 0.8
-#: the pressure's work is taken by parts wholly where every cell of a function's support reaches this wet
-#: fraction at its centre, not at all where one is at or below BY_PARTS_NONE (see the module)
-BY_PARTS_FULL = 0.5
-BY_PARTS_NONE = 0.3
+#: the wet fractions at a cell's centre between which the pressure's work goes from not at all to wholly by
+#: parts, in still water and in moving water (see the module)
+BY_PARTS_STILL = (0.3, 0.5)
+BY_PARTS_MOVING = (0.6, 0.9)
+#: a function's speed over sqrt(|g| h) from which its water moves, and to which it moves wholly
+STILL_SPEEDS = (0.05, 0.1)
 
 
 class DeepWater:
@@ -59,16 +65,17 @@ class DeepWater:
             self._open |= edge[side]
         self.centre_values = space.basis.tabulate(self.cells, 0.5 * grid.cell_sizes(self.cells) / grid.h, order=0)[:, 0, :]
         self.cell_functions = space.local_functions_of_cells(self.cells)
-        self._sums = GridFunction(Space(space.basis, {"shallow": 1, "log_ramp": 1, "dry": 1}), "deep_water_sums")
+        self._sums = GridFunction(Space(space.basis, {"shallow": 1, "still": 2, "moving": 2}), "deep_water_sums")
 
     def _summed(self, phi: np.ndarray, by_parts: bool = False) -> np.ndarray:
-        """Per local function: its support's cells below :data:`DEEP`; with ``by_parts`` also the sum of the
-        logarithms of their ramps above zero and the count of those at zero, blocked (an obstacle's cell,
-        whose face the basis does not resolve) or along an open side (owned and ghost, up to date; collective)."""
+        """Per local function: its support's cells below :data:`DEEP`; with ``by_parts`` also, for each ramp
+        (still, moving), the sum of the logarithms of the cells' ramps above zero and the count of those at
+        zero, blocked (an obstacle's cell, whose face the basis does not resolve) or along an open side
+        (owned and ghost, up to date; collective)."""
         sums = self._sums
         sums.values[:] = 0.0
         _sum_cells(self.centre_values, self.cell_functions, phi, self.grid.blocked[self.cells] | self._open, by_parts,
-                   BY_PARTS_NONE, BY_PARTS_FULL, sums.values)
+                   np.array([BY_PARTS_STILL, BY_PARTS_MOVING]), sums.values)
         sums.scatter_reverse_add()
         sums.scatter_forward()
         return sums.values
@@ -82,30 +89,37 @@ class DeepWater:
         """``deep`` on the local functions: 1.0 on the interior ones, else 0.0 (collective)."""
         return self.interior(phi).astype(np.float64)
 
-    def masks(self, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``deep`` and ``by_parts`` on the local functions, from one pass over the cells (collective)."""
+    def masks(self, phi: np.ndarray, speed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """``deep`` and ``by_parts`` on the local functions, from one pass over the cells, given each function's
+        speed over ``sqrt(|g| h)`` (None: still water, as without gravity; collective)."""
         sums = self._summed(phi, by_parts=True)
-        by_parts = np.where(sums[:, 2] > 0, 0.0, np.exp(sums[:, 1]))
+        still, moving = (np.where(sums[:, k + 1] > 0, 0.0, np.exp(sums[:, k])) for k in (1, 3))
+        if speed is None:
+            by_parts = still
+        else:
+            share = np.clip((STILL_SPEEDS[1] - speed) / (STILL_SPEEDS[1] - STILL_SPEEDS[0]), 0.0, 1.0)
+            by_parts = moving + share * (still - moving)
         return (sums[:, 0] == 0).astype(np.float64), by_parts
 
 
 @numba.njit(cache=True)
-def _sum_cells(centre_values, cell_functions, phi, blocked, by_parts, none, full, sums):
+def _sum_cells(centre_values, cell_functions, phi, blocked, by_parts, ramps, sums):
     """For each cell, ``phi`` at its centre ``sum_l N_l(centre) phi_l``; to every function of the cell add
-    1 to ``sums[:, 0]`` if it is below :data:`DEEP`; with ``by_parts`` the logarithm of its ramp
-    ``clip((phi - none) / (full - none), 0, 1)`` to ``sums[:, 1]`` if above zero and the cell not
-    ``blocked``, else 1 to ``sums[:, 2]``."""
+    1 to ``sums[:, 0]`` if it is below :data:`DEEP`; with ``by_parts``, for each ramp ``k`` of ``ramps``
+    (rows ``(none, full)``), the logarithm of ``clip((phi - none) / (full - none), 0, 1)`` to
+    ``sums[:, 1 + 2k]`` if above zero and the cell not ``blocked``, else 1 to ``sums[:, 2 + 2k]``."""
     for c in range(cell_functions.shape[0]):
         centre = 0.0
         for l in range(cell_functions.shape[1]):
             centre += centre_values[c, l] * phi[cell_functions[c, l]]
-        ramp = 0.0 if blocked[c] else min(1.0, (centre - none) / (full - none))
         for l in range(cell_functions.shape[1]):
             f = cell_functions[c, l]
             if centre < DEEP:
                 sums[f, 0] += 1.0
             if by_parts:
-                if ramp > 0.0:
-                    sums[f, 1] += np.log(ramp)
-                else:
-                    sums[f, 2] += 1.0
+                for k in range(ramps.shape[0]):
+                    ramp = 0.0 if blocked[c] else min(1.0, (centre - ramps[k, 0]) / (ramps[k, 1] - ramps[k, 0]))
+                    if ramp > 0.0:
+                        sums[f, 1 + 2 * k] += np.log(ramp)
+                    else:
+                        sums[f, 2 + 2 * k] += 1.0

@@ -241,16 +241,19 @@ class ImplicitSolver(Stepper):
         p2g = transfer.project_state(p, self.scheme.transfer, self._p2g)
         rho = s.fields["smoothed_density"].values
         rho[:] = transfer.smoothed_density(p2g.field("m"), self._integrals[:, None])
-        phi = rho[:, 0] / self._reference_density  # the wet fraction (fempm.density)
-        if s.constants["by_parts"]:  # the pressure's work by parts, and the volume correction's deep water
-            s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0] = self._deep_water.masks(phi)
-        elif s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's deep water
-            s.fields["deep"].values[:, 0] = self._deep_water(phi)
         keep = np.empty((s.scalar_space.numbering.num_owned, s.space.bs), dtype=np.bool_)
         _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
                     self._reference_density, c.min_support_fraction, c.min_pressure_support,
                     -(-self.basis.functions_per_cell // 3), s.fields["grid_velocity"].values,
                     s.fields["grid_acceleration"].values, self._held.values, keep, s.space.field_offset("p"))
+        phi = rho[:, 0] / self._reference_density  # the wet fraction (fempm.density)
+        if s.constants["by_parts"]:  # the pressure's work by parts, and the volume correction's deep water
+            g = float(np.linalg.norm(self.physics.gravity))
+            speed = (np.linalg.norm(s.fields["grid_velocity"].values, axis=1) / np.sqrt(g * self.grid.h)
+                     if g > 0 else None)
+            s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0] = self._deep_water.masks(phi, speed)
+        elif s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's deep water
+            s.fields["deep"].values[:, 0] = self._deep_water(phi)
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs
         s.walls.clear(self._held)  # a wall's motion is a value, not a held function's zero
         # for a solve again with fewer held walls (solve): the material's dofs, v_n and a_n before the walls'
