@@ -43,6 +43,7 @@ BY_PARTS_STILL = (0.3, 0.5)
 BY_PARTS_MOVING = (0.6, 0.9)
 #: a function's speed over sqrt(|g| h) from which its water moves, and to which it moves wholly
 STILL_SPEEDS = (0.05, 0.1)
+_RAMPS = np.array([BY_PARTS_STILL, BY_PARTS_MOVING])
 
 
 class DeepWater:
@@ -57,12 +58,12 @@ class DeepWater:
 
     def __init__(self, space: Space, open_sides=()):
         grid = space.grid
-        self.grid, self.cells = grid, grid.owned_cells
+        self.cells = grid.owned_cells
         i, j = self.cells % grid.nx, self.cells // grid.nx
         edge = {"left": i == 0, "right": i == grid.nx - 1, "bottom": j == 0, "top": j == grid.ny - 1}
-        self._open = np.zeros(len(self.cells), dtype=np.bool_)
+        self._unresolved = grid.blocked[self.cells].copy()  # where by_parts is zero (the grid's obstacles are set)
         for side in open_sides:
-            self._open |= edge[side]
+            self._unresolved |= edge[side]
         self.centre_values = space.basis.tabulate(self.cells, 0.5 * grid.cell_sizes(self.cells) / grid.h, order=0)[:, 0, :]
         self.cell_functions = space.local_functions_of_cells(self.cells)
         self._sums = GridFunction(Space(space.basis, {"shallow": 1, "still": 2, "moving": 2}), "deep_water_sums")
@@ -74,8 +75,7 @@ class DeepWater:
         (owned and ghost, up to date; collective)."""
         sums = self._sums
         sums.values[:] = 0.0
-        _sum_cells(self.centre_values, self.cell_functions, phi, self.grid.blocked[self.cells] | self._open, by_parts,
-                   np.array([BY_PARTS_STILL, BY_PARTS_MOVING]), sums.values)
+        _sum_cells(self.centre_values, self.cell_functions, phi, self._unresolved, by_parts, _RAMPS, sums.values)
         sums.scatter_reverse_add()
         sums.scatter_forward()
         return sums.values
