@@ -66,24 +66,28 @@ class DeepWater:
             self._unresolved |= edge[side]
         self.centre_values = space.basis.tabulate(self.cells, 0.5 * grid.cell_sizes(self.cells) / grid.h, order=0)[:, 0, :]
         self.cell_functions = space.local_functions_of_cells(self.cells)
-        self._sums = GridFunction(Space(space.basis, {"shallow": 1, "still": 2, "moving": 2}), "deep_water_sums")
+        self._shallow = GridFunction(space, "shallow_cells")
+        self._ramps = GridFunction(Space(space.basis, {"still": 2, "moving": 2}), "by_parts_ramps")
 
-    def _summed(self, phi: np.ndarray, by_parts: bool = False) -> np.ndarray:
+    def _summed(self, phi: np.ndarray, by_parts: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """Per local function: its support's cells below :data:`DEEP`; with ``by_parts`` also, for each ramp
         (still, moving), the sum of the logarithms of the cells' ramps above zero and the count of those at
         zero, blocked (an obstacle's cell, whose face the basis does not resolve) or along an open side
         (owned and ghost, up to date; collective)."""
-        sums = self._sums
-        sums.values[:] = 0.0
-        _sum_cells(self.centre_values, self.cell_functions, phi, self._unresolved, by_parts, _RAMPS, sums.values)
-        sums.scatter_reverse_add()
-        sums.scatter_forward()
-        return sums.values
+        sums = [self._shallow] + ([self._ramps] if by_parts else [])
+        for f in sums:
+            f.values[:] = 0.0
+        _sum_cells(self.centre_values, self.cell_functions, phi, self._unresolved, _RAMPS, self._shallow.values[:, 0],
+                   self._ramps.values if by_parts else np.zeros((0, 4)))
+        for f in sums:
+            f.scatter_reverse_add()
+            f.scatter_forward()
+        return self._shallow.values[:, 0], self._ramps.values if by_parts else None
 
     def interior(self, phi: np.ndarray) -> np.ndarray:
         """Which local functions have only deep cells in their support, given ``phi`` on the local
         functions (owned and ghost, up to date; collective)."""
-        return self._summed(phi)[:, 0] == 0
+        return self._summed(phi)[0] == 0
 
     def __call__(self, phi: np.ndarray) -> np.ndarray:
         """``deep`` on the local functions: 1.0 on the interior ones, else 0.0 (collective)."""
@@ -92,34 +96,39 @@ class DeepWater:
     def masks(self, phi: np.ndarray, speed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``deep`` and ``by_parts`` on the local functions, from one pass over the cells, given each function's
         speed over ``sqrt(|g| h)`` (None: still water, as without gravity; collective)."""
-        sums = self._summed(phi, by_parts=True)
-        still, moving = (np.where(sums[:, k + 1] > 0, 0.0, np.exp(sums[:, k])) for k in (1, 3))
+        shallow, ramps = self._summed(phi, by_parts=True)
+        still, moving = (np.where(ramps[:, k + 1] > 0, 0.0, np.exp(ramps[:, k])) for k in (0, 2))
         if speed is None:
             by_parts = still
         else:
             share = np.clip((STILL_SPEEDS[1] - speed) / (STILL_SPEEDS[1] - STILL_SPEEDS[0]), 0.0, 1.0)
             by_parts = moving + share * (still - moving)
-        return (sums[:, 0] == 0).astype(np.float64), by_parts
+        return (shallow == 0).astype(np.float64), by_parts
 
 
 @numba.njit(cache=True)
-def _sum_cells(centre_values, cell_functions, phi, blocked, by_parts, ramps, sums):
+def _sum_cells(centre_values, cell_functions, phi, blocked, ramps, shallow, sums):
     """For each cell, ``phi`` at its centre ``sum_l N_l(centre) phi_l``; to every function of the cell add
-    1 to ``sums[:, 0]`` if it is below :data:`DEEP`; with ``by_parts``, for each ramp ``k`` of ``ramps``
-    (rows ``(none, full)``), the logarithm of ``clip((phi - none) / (full - none), 0, 1)`` to
-    ``sums[:, 1 + 2k]`` if above zero and the cell not ``blocked``, else 1 to ``sums[:, 2 + 2k]``."""
+    1 to ``shallow`` if it is below :data:`DEEP`, and unless ``sums`` is empty, for each ramp ``k`` of
+    ``ramps`` (rows ``(none, full)``), the logarithm of ``clip((phi - none) / (full - none), 0, 1)`` to
+    ``sums[:, 2k]`` if above zero and the cell not ``blocked``, else 1 to ``sums[:, 2k + 1]``."""
+    by_parts = sums.shape[0] > 0
+    logs = np.empty(ramps.shape[0])
     for c in range(cell_functions.shape[0]):
         centre = 0.0
         for l in range(cell_functions.shape[1]):
             centre += centre_values[c, l] * phi[cell_functions[c, l]]
+        if by_parts:
+            for k in range(ramps.shape[0]):
+                ramp = 0.0 if blocked[c] else min(1.0, (centre - ramps[k, 0]) / (ramps[k, 1] - ramps[k, 0]))
+                logs[k] = np.log(ramp) if ramp > 0.0 else np.nan  # nan: the ramp is zero
         for l in range(cell_functions.shape[1]):
             f = cell_functions[c, l]
             if centre < DEEP:
-                sums[f, 0] += 1.0
+                shallow[f] += 1.0
             if by_parts:
                 for k in range(ramps.shape[0]):
-                    ramp = 0.0 if blocked[c] else min(1.0, (centre - ramps[k, 0]) / (ramps[k, 1] - ramps[k, 0]))
-                    if ramp > 0.0:
-                        sums[f, 1 + 2 * k] += np.log(ramp)
+                    if np.isnan(logs[k]):
+                        sums[f, 2 * k + 1] += 1.0
                     else:
-                        sums[f, 2 + 2 * k] += 1.0
+                        sums[f, 2 * k] += logs[k]
