@@ -52,43 +52,109 @@ FULL = 0.95  #: a particle moves where its concentration is at least this share 
 
 
 @numba.njit(cache=True, inline="always")
-def _wendland(q, norm):
-    """Wendland C2 kernel and its radial derivative (over h_k) at ``q = r / h_k``."""
-    if q >= 2.0:
-        return 0.0, 0.0
-    t = 1.0 - 0.5 * q
+def _wendland(t, norm):
+    """Wendland C2 kernel ``W`` at ``t = 1 - q / 2`` (``q = r / h_k < 2``), and ``t^3`` (its radial derivative over
+    ``h_k r`` is ``-5 norm t^3 / h_k^2``, free of ``r``)."""
     t3 = t * t * t
-    return norm * t3 * t * (2.0 * q + 1.0), -5.0 * norm * q * t3
+    return norm * t3 * t * (5.0 - 4.0 * t), t3
+
+
+@numba.njit(cache=True, inline="always")
+def _pair(dx, dy, support2, inv_hk, norm, dnorm, inv_w_dp):
+    """For points ``(dx, dy)`` apart: ``W`` and the factor ``f`` of ``grad_i W_ij (1 + R (W / W(dp))^4) = f (dx,
+    dy)``; (0, 0) beyond the support."""
+    r2 = dx * dx + dy * dy
+    if r2 >= support2:
+        return 0.0, 0.0
+    w, t3 = _wendland(1.0 - 0.5 * np.sqrt(r2) * inv_hk, norm)
+    ratio = w * inv_w_dp
+    ratio *= ratio
+    return w, (1.0 + TENSILE * ratio * ratio) * dnorm * t3
+
+
+@numba.njit(cache=True)
+def _bins(x, lower, nbx, nby, size):
+    """The points sorted by square bins of side ``size`` (a counting sort): the order, and each bin's start in it."""
+    n = x.shape[0]
+    start = np.zeros(nbx * nby + 1, dtype=np.int64)
+    bin_of = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        bx = min(max(int((x[i, 0] - lower[0]) / size), 0), nbx - 1)
+        by = min(max(int((x[i, 1] - lower[1]) / size), 0), nby - 1)
+        bin_of[i] = bx + nbx * by
+        start[bin_of[i] + 1] += 1
+    for b in range(nbx * nby):
+        start[b + 1] += start[b]
+    fill = start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        order[fill[bin_of[i]]] = i
+        fill[bin_of[i]] += 1
+    return order, start
+
+
+#: a bin's neighbours whose pairs it sums (the other half sum theirs with it): right, and the row above
+HALF_SHELL = ((1, 0), (-1, 1), (0, 1), (1, 1))
 
 
 @numba.njit(cache=True)
 def concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, grad, conc):
     """``grad_i = sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij`` and ``conc_i = sum_j V_j W_ij`` for the first
     ``n_own`` points, over all points within ``2 h_k`` and their images across the mirrored sides (left,
-    right, bottom, top)."""
+    right, bottom, top). Each pair of points is taken once, for both (the terms are symmetric)."""
     n = x.shape[0]
     support = 2.0 * hk
+    support2, inv_hk, inv_w_dp = support * support, 1.0 / hk, 1.0 / w_dp
     norm = 7.0 / (4.0 * np.pi * hk * hk)
+    dnorm = -5.0 * norm * inv_hk * inv_hk
     nbx = max(int((upper[0] - lower[0]) / support) + 1, 1)
     nby = max(int((upper[1] - lower[1]) / support) + 1, 1)
-    head = -np.ones(nbx * nby, dtype=np.int64)
-    nxt = np.empty(n, dtype=np.int64)
-    bx = np.empty(n, dtype=np.int64)
-    by = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        bx[i] = min(max(int((x[i, 0] - lower[0]) / support), 0), nbx - 1)
-        by[i] = min(max(int((x[i, 1] - lower[1]) / support), 0), nby - 1)
-        b = bx[i] + nbx * by[i]
-        nxt[i] = head[b]
-        head[b] = i
+    order, start = _bins(x, lower, nbx, nby, support)
+    xs, ys, vs = np.empty(n), np.empty(n), np.empty(n)  # the points in bin order
+    for a in range(n):
+        xs[a], ys[a], vs[a] = x[order[a], 0], x[order[a], 1], volume[order[a]]
+    cs, gx, gy = vs * norm, np.zeros(n), np.zeros(n)  # each point's own W(0)
+    for by in range(nby):
+        for bx in range(nbx):
+            b = bx + nbx * by
+            for a in range(start[b], start[b + 1]):
+                xa, ya, va = xs[a], ys[a], vs[a]
+                ca = gxa = gya = 0.0
+                for k in range(len(HALF_SHELL) + 1):  # its own bin's points after it, then the half shell's
+                    if k == 0:
+                        first, last = a + 1, start[b + 1]
+                    else:
+                        b2x, b2y = bx + HALF_SHELL[k - 1][0], by + HALF_SHELL[k - 1][1]
+                        if b2x < 0 or b2x >= nbx or b2y >= nby:
+                            continue
+                        first, last = start[b2x + nbx * b2y], start[b2x + nbx * b2y + 1]
+                    for c in range(first, last):
+                        dx, dy = xa - xs[c], ya - ys[c]
+                        w, f = _pair(dx, dy, support2, inv_hk, norm, dnorm, inv_w_dp)
+                        ca += vs[c] * w
+                        gxa += vs[c] * f * dx
+                        gya += vs[c] * f * dy
+                        cs[c] += va * w
+                        gx[c] -= va * f * dx
+                        gy[c] -= va * f * dy
+                cs[a] += ca
+                gx[a] += gxa
+                gy[a] += gya
+    _add_images(xs, ys, vs, start, nbx, nby, lower, upper, mirror, support, inv_hk, norm, dnorm, inv_w_dp, cs, gx, gy)
+    for a in range(n):
+        if order[a] < n_own:
+            conc[order[a]], grad[order[a], 0], grad[order[a], 1] = cs[a], gx[a], gy[a]
+
+
+@numba.njit(cache=True)
+def _add_images(xs, ys, vs, start, nbx, nby, lower, upper, mirror, support, inv_hk, norm, dnorm, inv_w_dp, cs, gx,
+                gy):
+    """Add to each point near a mirrored side the terms of the points' images across it (a side in x and one
+    in y at most, and the corner's image of both)."""
     support2 = support * support
-    ox = np.empty(4)  # the images this particle sees: x_j -> (ox - x_j) or x_j, likewise y
-    oy = np.empty(4)
-    fx = np.empty(4)
-    fy = np.empty(4)
-    for i in range(n_own):
-        xi, yi = x[i, 0], x[i, 1]
-        # the mirrors within this particle's support: a side in x and one in y at most
+    ox, oy, fx, fy = np.empty(4), np.empty(4), np.empty(4), np.empty(4)  # image k of x_j: (ox + fx x_j, oy + fy y_j)
+    for a in range(xs.shape[0]):
+        xi, yi = xs[a], ys[a]
         images = 1
         ox[0] = oy[0] = 0.0
         fx[0] = fy[0] = 1.0
@@ -100,37 +166,23 @@ def concentration_gradients(x, volume, n_own, lower, upper, mirror, hk, w_dp, gr
             for k in range(images):
                 ox[images + k], oy[images + k], fx[images + k], fy[images + k] = ox[k], my, fx[k], -1.0
             images *= 2
-        c = 0.0
-        gx = 0.0
-        gy = 0.0
-        for dby in range(-1, 2):
-            b1 = by[i] + dby
-            if b1 < 0 or b1 >= nby:
-                continue
-            for dbx in range(-1, 2):
-                b0 = bx[i] + dbx
-                if b0 < 0 or b0 >= nbx:
-                    continue
-                j = head[b0 + nbx * b1]
-                while j >= 0:
-                    for k in range(images):
-                        dx = xi - (ox[k] + fx[k] * x[j, 0])
-                        dy = yi - (oy[k] + fy[k] * x[j, 1])
-                        r2 = dx * dx + dy * dy
-                        if r2 >= support2:
-                            continue
-                        r = np.sqrt(r2)
-                        w, dw = _wendland(r / hk, norm)
-                        c += volume[j] * w
-                        if r > 0.0:
-                            ratio = w / w_dp
-                            f = volume[j] * (1.0 + TENSILE * ratio * ratio * ratio * ratio) * dw / (hk * r)
-                            gx += f * dx
-                            gy += f * dy
-                    j = nxt[j]
-        conc[i] = c
-        grad[i, 0] = gx
-        grad[i, 1] = gy
+        if images == 1:
+            continue
+        bx = min(max(int((xi - lower[0]) / support), 0), nbx - 1)
+        by = min(max(int((yi - lower[1]) / support), 0), nby - 1)
+        c = gxa = gya = 0.0
+        for b1 in range(max(by - 1, 0), min(by + 2, nby)):
+            for b0 in range(max(bx - 1, 0), min(bx + 2, nbx)):
+                for j in range(start[b0 + nbx * b1], start[b0 + nbx * b1 + 1]):
+                    for k in range(1, images):
+                        dx, dy = xi - (ox[k] + fx[k] * xs[j]), yi - (oy[k] + fy[k] * ys[j])
+                        w, f = _pair(dx, dy, support2, inv_hk, norm, dnorm, inv_w_dp)
+                        c += vs[j] * w
+                        gxa += vs[j] * f * dx
+                        gya += vs[j] * f * dy
+        cs[a] += c
+        gx[a] += gxa
+        gy[a] += gya
 
 
 @numba.njit(cache=True)
@@ -180,7 +232,7 @@ def _move(x, v, movable, mean, mean_velocity, turn, shifts):
 
 def kernel_at_spacing(hk: float, dp: float) -> float:
     """``W(dp)``, the kernel at one spacing (the anti-clumping term's scale)."""
-    return _wendland(dp / hk, 7.0 / (4.0 * np.pi * hk * hk))[0]
+    return _wendland(1.0 - 0.5 * dp / hk, 7.0 / (4.0 * np.pi * hk * hk))[0]
 
 
 def _with_neighbours(x: np.ndarray, volume: np.ndarray, reach: float, comm) -> tuple[np.ndarray, np.ndarray]:
