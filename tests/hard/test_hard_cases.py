@@ -272,16 +272,17 @@ def test_a_long_run_settles_with_its_volume(full):
         assert_sound(o, 800, speed_ratio=2.3, energy_max=1.0 + 0.009, energy_rise=0.005)
     else:  # the big step's energy error: the first 2 s are test_dam_break_at_ten_times_the_seeds_step's
         assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.037)
-    # the layer's surface, a snapshot of a still sloshing layer (it moves with round-off): 71.6 mm after 5 s with
-    # G2P over the moved functions (73.6 mm before; 69.6 mm with the whole PIC share alone; 63.9-73.8 mm on earlier
-    # codes); after 40 s 74.4 mm (docs/hard-cases.md; 66.7-76.8 mm on earlier codes): within 6 % (CI) and 10 % (full)
-    # of SETTLED_DEPTH = 73 mm
-    assert o.surface_height == pytest.approx(SETTLED_DEPTH, rel=bound(full, 0.06, 0.10))
-    if full:  # the layer's mean depth over the last 5 s, twice its centroid's height: 75.8 mm, std 1.5 mm, with PSPG's
-        # tau free of the step (75.4 mm with tau's T = max(dt, ...)) and the scene's particle shifting (without 76.4 mm, std 1.0 mm over those seconds; before the crowding tolerance 77.05;
-        # 76.92 with PSPG's viscous part)
-        t, centroid = o.history["t"], np.asarray(o.history["centroid"])
+    t, centroid = o.history["t"], np.asarray(o.history["centroid"])
+    if full:  # the layer's surface after 40 s: 74.4 mm (docs/hard-cases.md; 66.7-76.8 mm on earlier codes)
+        assert o.surface_height == pytest.approx(SETTLED_DEPTH, rel=0.10)
+        # its mean depth over the last 5 s, twice its centroid's height: 75.8 mm, std 1.5 mm, with PSPG's tau free of
+        # the step (75.4 mm with tau's T = max(dt, ...)) and the scene's particle shifting (without 76.4 mm, std 1.0 mm
+        # over those seconds; before the crowding tolerance 77.05; 76.92 with PSPG's viscous part)
         assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0754, rel=0.01)
+    else:  # after 5 s the layer still sloshes, and its surface at one instant moves with round-off (75.1 and 67.4 mm
+        # for two codes that differ in the shifting's last bits): its mean depth over the last second, twice its
+        # centroid's height, measured 75.3 and 74.6 mm (std 1.5 mm), within 4 % of SETTLED_DEPTH = 73 mm
+        assert 2 * centroid[t >= t[-1] - 1.0, 1].mean() == pytest.approx(SETTLED_DEPTH, rel=0.04)
     # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.264 at 5 s
     # (from a_0 = 0 0.277; start-configuration divergence 0.280)
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.29, 1.4 * SETTLED_DEPTH / hc.H)
