@@ -137,6 +137,17 @@ class Basis:
         k = self.degree
         return np.concatenate([np.zeros(k), np.arange(n, dtype=np.float64), np.full(k + 1, n - 1 + last)])
 
+    def greville(self, n: int, last: float = 1.0) -> np.ndarray:
+        """The Greville points (in cells from the lower side) of the functions along a side of ``n`` cells: the
+        means of ``degree`` consecutive knots. A linear function's coefficients are its values there."""
+        t, k = self.knots(n, last), self.degree
+        return np.array([t[j + 1: j + k + 1].mean() for j in range(n + k)])
+
+    def side_integrals(self, n: int, last: float = 1.0) -> np.ndarray:
+        """``int N_j`` (in cells) of the functions along a side of ``n`` cells: ``(t_{j+k+1} - t_j) / (k + 1)``."""
+        t, k = self.knots(n, last), self.degree
+        return (t[k + 1:] - t[: -(k + 1)]) / (k + 1)
+
     def cell_functions(self, cells) -> np.ndarray:
         """Global (structured) indices of the functions non-zero in each cell.
 

@@ -23,6 +23,7 @@ from fempm import diagnostics, transfer
 from fempm.bases import Basis
 from fempm.density import DeepWater
 from fempm.errors import InputError
+from fempm.hydrostatic import HydrostaticPressure
 from fempm.options import SIDES, Controls, Physics, Scheme
 from fempm.pressure_points import GaussPoints
 from fempm.particles import Particles
@@ -139,7 +140,10 @@ class ImplicitSolver(Stepper):
         self._held = GridFunction(Space(basis, {"held": 2}), "held")  # 1 where a step held at rest (project)
         self._integrals = transfer.density_normalisation(basis, particles)[s.scalar_space.numbering.local_functions]
         walls = physics.wall_conditions()
-        self._deep_water = DeepWater(s.scalar_space, [side for side in SIDES if walls[side] in ("outflow", "open")])
+        open_sides = [side for side in SIDES if walls[side] in ("outflow", "open")]
+        self._deep_water = DeepWater(s.scalar_space, open_sides)
+        self._hydrostatic = (HydrostaticPressure(s.scalar_space, physics.gravity, self._reference_density, open_sides)
+                             if s.constants["split"] else None)
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
@@ -247,11 +251,13 @@ class ImplicitSolver(Stepper):
                     -(-self.basis.functions_per_cell // 3), s.fields["grid_velocity"].values,
                     s.fields["grid_acceleration"].values, self._held.values, keep, s.space.field_offset("p"))
         phi = rho[:, 0] / self._reference_density  # the wet fraction (fempm.density)
-        if s.constants["by_parts"]:  # the pressure's work by parts, and the volume correction's deep water
+        if s.constants["by_parts"] or s.constants["split"]:  # the weight of the work by parts, the correction's deep water
             g = float(np.linalg.norm(self.physics.gravity))
             speed = (np.linalg.norm(s.fields["grid_velocity"].values, axis=1) / np.sqrt(g * self.grid.h)
                      if g > 0 else None)
             s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0] = self._deep_water.masks(phi, speed)
+            if self._hydrostatic is not None:  # the split's hydrostatic pressure (fempm.hydrostatic)
+                s.fields["hydrostatic"].values[:, 0] = self._hydrostatic(phi)
         elif s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's deep water
             s.fields["deep"].values[:, 0] = self._deep_water(phi)
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs

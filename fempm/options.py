@@ -26,7 +26,7 @@ TRANSFERS = ("flip", "apic", "tpic", "affine-flip")
 #: where the pressure's terms are integrated (fempm.pressure_points)
 PRESSURE_QUADRATURES = ("particles", "gauss")
 #: how the momentum balance takes the pressure's work (:attr:`Scheme.pressure_work`)
-PRESSURE_WORKS = ("divergence", "by-parts")
+PRESSURE_WORKS = ("divergence", "by-parts", "split")
 #: how the implicit step gets Newmark's a_0 (:attr:`Scheme.initial_acceleration`)
 INITIAL_ACCELERATIONS = ("solved", "given")
 #: ``Controls.matrix_region = "auto"`` keeps rows only near the water above this many cells.
@@ -155,7 +155,9 @@ class Scheme:
         pressure_work: how the momentum balance takes the pressure's work, one of :data:`PRESSURE_WORKS`:
             ``divergence`` (``-p div w``, method.md) or ``by-parts`` (``w . grad p`` where the water is deep,
             the forms' constant ``by_parts``; ``forms/incompressible.py``, ``pressure_work``): water at rest
-            then balances gravity at every particle, wherever the particles stand.
+            then balances gravity at every particle, wherever the particles stand; or ``split`` (the divergence
+            form, and the hydrostatic pressure's work taken by parts, the forms' constant ``split``;
+            :mod:`fempm.hydrostatic`): still water stirs far less, the Jacobian is the divergence form's.
     """
 
     dt: float = 1.0e-3

@@ -370,8 +370,8 @@ def _parse(data: dict, source: Path, forms: str | Path | None) -> Scene:
     elif solver.forms == "gauss_pressure" and solver.pressure_quadrature != "gauss":
         raise InputError("solver.forms = 'gauss_pressure' integrates the pressure's terms at Gauss points: set "
                          "solver.pressure_quadrature = 'gauss'")
-    if solver.pressure_work == "by-parts" and solver.pressure_quadrature == "gauss":
-        raise InputError("solver.pressure_work = 'by-parts' is a form of the particles' quadrature: with "
+    if solver.pressure_work != "divergence" and solver.pressure_quadrature == "gauss":
+        raise InputError(f"solver.pressure_work = {solver.pressure_work!r} is a form of the particles' quadrature: with "
                          "solver.pressure_quadrature = 'gauss' the pressure's work is at the Gauss points already")
     _check_folder(values["output"].folder)
     return Scene(**values)

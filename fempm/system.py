@@ -108,6 +108,7 @@ class GridSystem:
             "smoothed_density": GridFunction(self.scalar_space, "smoothed_density"),
             "deep": GridFunction(self.scalar_space, "deep"),  # fempm.density.DeepWater
             "by_parts": GridFunction(self.scalar_space, "by_parts"),  # fempm.density.DeepWater; 0 on a fixed grid
+            "hydrostatic": GridFunction(self.scalar_space, "hydrostatic"),  # fempm.hydrostatic; 0 on a fixed grid
         }
         self.velocity = GridFunction(self.vector_space, "velocity")
         self.pressure = GridFunction(self.scalar_space, "pressure")
@@ -115,6 +116,7 @@ class GridSystem:
             "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
             "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.volume_share(scheme.dt), "pspg": float(scheme.pspg),
             "surface_aware": float(scheme.surface_aware), "by_parts": float(scheme.pressure_work == "by-parts"),
+            "split": float(scheme.pressure_work == "split"),
             "convection": float(convection), "density": float(density),
         }
         self.walls = Walls(self.space, physics)
@@ -184,11 +186,11 @@ class GridSystem:
 
     def reaction(self, forms: StepForms, particles=None, rows: np.ndarray | None = None) -> np.ndarray:
         """The residual ``R(U)`` of the solved step at the owned dofs ``rows`` (default all), less the forms'
-        ``wall_force_excess`` with the pressure's work by parts: on a held dof the force its constraint exerts (one-sided
-        walls, :meth:`fempm.walls.Walls.update`). For forms affine in U ``R(U_0) + J delta`` from the
+        ``wall_force_excess`` with the pressure's work by parts or split: on a held dof the force its constraint exerts
+        (one-sided walls, :meth:`fempm.walls.Walls.update`). For forms affine in U ``R(U_0) + J delta`` from the
         solve's own vectors, else assembled again."""
         rows = np.arange(self.space.num_owned_dofs) if rows is None else np.asarray(rows, dtype=np.int64)
-        excess = forms.wall_force_excess if self.constants["by_parts"] else None
+        excess = forms.wall_force_excess if self.constants["by_parts"] or self.constants["split"] else None
         excess = 0.0 if excess is None else excess.assemble_vector(particles).array[rows]
         if not forms.linear:
             return forms.residual.assemble_vector(particles, self._R).array[rows] - excess

@@ -18,11 +18,12 @@ What a form may use (see ``fempm.quadrature.Symbols``):
   ``grid_acceleration`` a_n (the particle values projected to the grid,
   ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2),
   ``deep`` (1 where a function's support lies deep in the water, else 0; see :func:`continuity`),
-  ``by_parts`` (the share of the pressure's work taken by parts, 0 to 1; see :func:`pressure_work`);
+  ``by_parts`` (the share of the pressure's work taken by parts, 0 to 1; see :func:`pressure_work`),
+  ``hydrostatic`` (the hydrostatic pressure whose work the split takes by parts, ``fempm.hydrostatic``);
 * constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``density`` (the
   fluid's reference density), ``gravity``
   (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``surface_aware`` (1 or 0,
-  its density error, see :func:`continuity`), ``by_parts`` (1 or 0, see :func:`pressure_work`), ``pspg`` (1 or 0),
+  its density error, see :func:`continuity`), ``by_parts`` and ``split`` (1 or 0, see :func:`pressure_work`), ``pspg`` (1 or 0),
   ``convection`` (1 on a fixed grid, see :func:`convection`; 0 in the MPM, whose
   grid moves with the material).
 
@@ -209,8 +210,17 @@ def momentum(s):
 
 def pressure_work(s, p, w):
     """The pressure's work in the momentum balance, ``-p J* div_x w`` (eq. 1's ``-B^T p``; see
-    :func:`end_divergence`); with ``by_parts`` = 1 (``solver.pressure_work = "by-parts"``) taken by parts
-    with the weight ``D`` (the grid function ``by_parts``, ``fempm.density``)::
+    :func:`end_divergence`); with ``split`` = 1 (``solver.pressure_work = "split"``) the hydrostatic part's work
+    taken by parts, an exact zero added (the grid function ``hydrostatic``, ``H``; ``fempm.hydrostatic``)::
+
+        -p J* div_x w + by_parts_excess(H)  =  -(p - D H) J* div_x w + w . cof F* grad(D H)
+
+    whose integral is ``D H w . n`` on the water's edge, zero where ``D H`` vanishes at the free surfaces (``H``
+    does within two cells of them). At the particles the hydrostatic pressure then balances gravity through its
+    gradient, not through the quadrature's error in ``div(H w)`` times its level, and the Jacobian is the
+    divergence form's (``H`` is known at the solve). With ``by_parts`` = 1 (``solver.pressure_work = "by-parts"``)
+    the whole pressure's work is taken by parts with the weight ``D`` (the grid function ``by_parts``,
+    ``fempm.density``)::
 
         -(1 - D) p J* div_x w + w . cof F* grad(D p)  =  -p J* div_x w + by_parts_excess
 
@@ -226,6 +236,8 @@ def pressure_work(s, p, w):
     wall, which :func:`wall_force_excess` gives back there.
     """
     work = -p * end_divergence(s, w)
+    if switched_on(s.constant("split")):
+        return work + by_parts_excess(s, s.grid("hydrostatic"), w)
     return work + by_parts_excess(s, p, w) if switched_on(s.constant("by_parts")) else work
 
 
@@ -241,11 +253,13 @@ def by_parts_excess(s, p, w):
 
 def wall_force_excess(s):
     """The residual's excess at a held wall dof over the walls' force on the water (one-sided walls,
-    ``fempm.walls``, subtract it there): :func:`by_parts_excess`, ``div(D p w)``, whose integral over the
-    water is the pressure's push ``D p w . n`` on the walls."""
+    ``fempm.walls``, subtract it there): :func:`by_parts_excess` of what :func:`pressure_work` takes by parts,
+    ``div(D p w)`` (or ``div(D H w)`` with the split), whose integral over the water is the push ``D p w . n``
+    (``D H w . n``) on the walls."""
     _, p = ufl.split(s.grid("U"))
     w, _ = s.test
-    return by_parts_excess(s, p, w) * s.dx
+    taken = s.grid("hydrostatic") if switched_on(s.constant("split")) else p
+    return by_parts_excess(s, taken, w) * s.dx
 
 
 #: crowding the volume correction leaves alone, a share of the density (see continuity)

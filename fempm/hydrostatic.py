@@ -1,0 +1,127 @@
+"""The hydrostatic pressure the momentum balance's split takes by parts (``solver.pressure_work = "split"``).
+
+In divergence form, ``-p div w`` at the particles, water at rest balances gravity only as well as the particle
+quadrature integrates ``div(p w)``; that error times the hydrostatic pressure is a force that grows with the
+depth and moves the particles that make it (README, known limits). The split adds to the pressure's work the
+divergence of ``D H cof F*^T w`` (``forms/incompressible.py``, ``pressure_work``), an exact zero wherever the
+known field ``D H`` vanishes on the water's free edges, so that at the particles the hydrostatic part works
+through ``w . grad(D H)``, free of its level. ``H`` is taken here from the wet fractions of the step's P2G::
+
+    H = rho |g| max(min(eta - y, h dist) - BELOW h, 0)
+
+``eta`` the water's depth in the function's column (the wet fraction summed up the column), ``y`` the function's
+Greville point (a linear field's coefficients are its values there), ``dist`` the number of functions to the
+nearest dry one (wet fraction below :data:`WET`; Chebyshev distance; the outside of an open side is dry, the
+walls' is not). So ``H`` is zero within ``BELOW`` cells of every free surface, above and beside the water, and
+grows no faster than ``rho |g|`` in any direction. Every rank computes it on the whole grid from the gathered wet
+fractions: the same numbers on any number of ranks. Gravity along ``-y`` only; otherwise ``H`` is zero.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+from mpi4py import MPI
+
+from fempm.space import Space
+
+__all__ = ["BELOW", "WET", "HydrostaticPressure"]
+
+#: cells below every free surface within which ``H`` is zero (measured: docs/notes-accuracy.md, the split)
+BELOW = 2.0
+#: the wet fraction from which a function counts as wet
+WET = 0.5
+
+
+@numba.njit(cache=True)
+def _distance_to_dry(wet, open_sides, out):
+    """Chebyshev distance (in functions) of every function of ``wet`` ``(nfy, nfx)`` to the nearest dry one, by two
+    passes of the chessboard transform; beyond an open side (``open_sides``: left, right, bottom, top) lies a dry
+    row, beyond a wall none (a distance of ``nfx + nfy`` where no function is dry)."""
+    nfy, nfx = wet.shape
+    far = float(nfx + nfy)
+    for j in range(nfy):
+        for i in range(nfx):
+            d = far if wet[j, i] else 0.0
+            if (open_sides[0] and i == 0) or (open_sides[1] and i == nfx - 1) or \
+                    (open_sides[2] and j == 0) or (open_sides[3] and j == nfy - 1):
+                d = min(d, 1.0)
+            out[j, i] = d
+    for j in range(nfy):
+        for i in range(nfx):
+            d = out[j, i]
+            if i > 0:
+                d = min(d, out[j, i - 1] + 1.0)
+            if j > 0:
+                for k in range(max(i - 1, 0), min(i + 1, nfx - 1) + 1):
+                    d = min(d, out[j - 1, k] + 1.0)
+            out[j, i] = d
+    for j in range(nfy - 1, -1, -1):
+        for i in range(nfx - 1, -1, -1):
+            d = out[j, i]
+            if i < nfx - 1:
+                d = min(d, out[j, i + 1] + 1.0)
+            if j < nfy - 1:
+                for k in range(max(i - 1, 0), min(i + 1, nfx - 1) + 1):
+                    d = min(d, out[j + 1, k] + 1.0)
+            out[j, i] = d
+
+
+@numba.njit(cache=True)
+def _hydrostatic(fraction, widths, heights, h, below, scale, open_sides, out):
+    """``out`` ``(nfy, nfx)``: ``H`` of the module's formula from the wet fractions ``fraction`` (at most 1), the
+    functions' ``widths`` ``int N_j dy`` and Greville ``heights`` above the grid's lower side along ``y``."""
+    nfy, nfx = fraction.shape
+    wet = np.empty((nfy, nfx), dtype=np.bool_)
+    for j in range(nfy):
+        for i in range(nfx):
+            wet[j, i] = fraction[j, i] >= WET
+    _distance_to_dry(wet, open_sides, out)
+    for i in range(nfx):
+        eta = 0.0
+        for j in range(nfy):
+            eta += fraction[j, i] * widths[j]
+        for j in range(nfy):
+            depth = min(eta - heights[j], h * out[j, i]) - below
+            out[j, i] = scale * depth if depth > 0.0 else 0.0
+
+
+class HydrostaticPressure:
+    """``H`` (see the module) on a scalar space's local functions from their wet fractions.
+
+    Args:
+        space: a scalar space of the basis.
+        gravity: the body force per mass (2-vector).
+        density: the water's density.
+        open_sides: the sides (of ``fempm.options.SIDES``) that let water out: beyond them the water ends.
+    """
+
+    def __init__(self, space: Space, gravity, density: float, open_sides=()):
+        grid, basis = space.grid, space.basis
+        self.comm = grid.comm
+        self.shape = (basis.nfy, basis.nfx)
+        self.functions = space.numbering.local_functions
+        self.owned = self.functions[: space.numbering.num_owned]
+        g = np.asarray(gravity, dtype=float)
+        self.active = g[0] == 0.0 and g[1] < 0.0  # gravity along -y
+        self.scale = density * float(np.linalg.norm(g))
+        self.h = grid.h
+        last = float(grid.last[1])
+        self.widths = grid.h * basis.side_integrals(grid.ny, last)
+        self.heights = grid.h * basis.greville(grid.ny, last)
+        self.open_sides = np.array([side in open_sides for side in ("left", "right", "bottom", "top")])
+        self._fraction = np.zeros(self.shape)
+        self._out = np.zeros(self.shape)
+
+    def __call__(self, fraction: np.ndarray) -> np.ndarray:
+        """``H`` on the local functions, given their wet fractions (owned ones read; collective)."""
+        if not self.active:
+            return np.zeros(len(self.functions))
+        whole = self._fraction.reshape(-1)
+        whole[:] = 0.0
+        whole[self.owned] = np.minimum(fraction[: len(self.owned)], 1.0)
+        if self.comm.size > 1:  # one rank owns each function: the sum is exact
+            self.comm.Allreduce(MPI.IN_PLACE, whole, op=MPI.SUM)
+        _hydrostatic(self._fraction, self.widths, self.heights, self.h, BELOW * self.h, self.scale, self.open_sides,
+                     self._out)
+        return self._out.reshape(-1)[self.functions]
