@@ -15,8 +15,8 @@ water's edge: the least, over all functions ``k``, of the Chebyshev distance to 
 rises from 0 at a wet fraction of :data:`DRY` to infinity at :data:`FULL`, ``(phi - DRY) / (FULL - phi)`` (the
 outside of an open side is dry, the walls' is not). So ``H`` is zero within ``BELOW`` cells of every free surface,
 above and beside the water, grows no faster than ``rho |g|`` in any direction, and changes continuously with the
-wet fractions: a distance counted to the nearest function below a threshold jumped by a cell as one crossed it, and
-the highest wall gauge's noise went from 4.3 to 5.0 %. Every rank computes it on the whole grid from the gathered wet
+wet fractions (a distance counted to the nearest function below a threshold jumped by a cell as one crossed it, and
+made the wall gauges noisier; docs/notes-accuracy.md). Every rank computes it on the whole grid from the gathered wet
 fractions: the same numbers on any number of ranks. Gravity along ``-y`` only; otherwise ``H`` is zero.
 """
 

@@ -10,7 +10,8 @@ import pytest
 from mpi4py import MPI
 
 import fempm
-from fempm.cases import hard
+from fempm.cases import dambreak, hard
+from fempm.errors import InputError
 from fempm.hydrostatic import BELOW, DRY, FULL, HydrostaticPressure
 from fempm.space import Space
 
@@ -105,3 +106,8 @@ def test_the_dam_break_split_is_the_same_on_1_and_2_ranks(tmp_path):
     (front1, gauges1), (front2, gauges2) = runs[1], runs[2]
     assert np.abs(front2 - front1).max() <= 1e-10
     assert np.nanmax(np.abs(gauges2 - gauges1)) <= 1e-6 * np.nanmax(np.abs(gauges1))
+
+
+def test_the_split_with_the_gauss_points_is_refused():
+    with pytest.raises(InputError, match="pressure_work = 'split' is a form of the particles' quadrature"):
+        dambreak.scene({"solver.pressure_work": "split", "solver.pressure_quadrature": "gauss"}, files=False)
