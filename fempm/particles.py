@@ -18,7 +18,7 @@ import numpy as np
 from fempm.errors import InputError, ParticleOutsideGridError
 from fempm.grid import Grid
 
-__all__ = ["Particles", "Polygon", "Rectangle", "sub_cell_centres"]
+__all__ = ["ParticleSubset", "Particles", "Polygon", "Rectangle", "sub_cell_centres"]
 
 
 @dataclass(frozen=True)
@@ -373,6 +373,29 @@ class Particles:
         order = np.argsort(self.cell * (int(self.id.max(initial=-1)) + 1) + self.id, kind="stable")
         self._take(order)
         self.cache.clear()
+
+
+class ParticleSubset:
+    """Some of a rank's particles (``index``, kept in their order), read by the forms' assembly as the particles
+    are: a vector assembled over them is the particles' own at every dof whose functions hold no other particle."""
+
+    def __init__(self, particles: Particles, index: np.ndarray):
+        self._particles, self._index = particles, index
+        self.cell, self.xi = particles.cell[index], _rows(particles.xi, index)
+        self.cache: dict = {}  # their tabulations (fempm.space.Space.tabulate_particles)
+        self._fields: dict[str, np.ndarray] = {}
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self["x"]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        if name not in self._fields:
+            self._fields[name] = _rows(self._particles[name], self._index)
+        return self._fields[name]
 
 
 def _rows(a: np.ndarray, index: np.ndarray) -> np.ndarray:

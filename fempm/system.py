@@ -20,6 +20,7 @@ from fempm.bases import Basis
 from fempm.formsfile import load_forms
 from fempm.linear import LinearSolver, SolveFailed
 from fempm.options import Controls, Physics, Scheme
+from fempm.particles import ParticleSubset
 from fempm.quadrature import ParticleForm
 from fempm.space import GridFunction, Space
 from fempm.timing import PhaseTimes
@@ -124,6 +125,7 @@ class GridSystem:
         self.linear_solver = LinearSolver(self.comm, "fempm_", controls.petsc_options, fields=self.space.fields)
         self.newton_iterations = 0
         self._R = self.space.create_vector()
+        self._rows_marked = GridFunction(self.scalar_space, "reaction_rows")  # see _adding_to
         self._delta, self._delta_of = None, None
 
     @property
@@ -191,7 +193,7 @@ class GridSystem:
         solve's own vectors, else assembled again."""
         rows = np.arange(self.space.num_owned_dofs) if rows is None else np.asarray(rows, dtype=np.int64)
         excess = forms.wall_force_excess if self.constants["by_parts"] or self.constants["split"] else None
-        excess = 0.0 if excess is None else excess.assemble_vector(particles).array[rows]
+        excess = 0.0 if excess is None else excess.assemble_vector(self._adding_to(rows, particles)).array[rows]
         if not forms.linear:
             return forms.residual.assemble_vector(particles, self._R).array[rows] - excess
         # the solve scaled R(U_0) by -1; delta = U - U_0
@@ -202,6 +204,18 @@ class GridSystem:
             self._delta_of.mult(self._delta, whole)
             product = whole.getArray(readonly=True)[rows]
         return product - self._R.array[rows] - excess
+
+    def _adding_to(self, rows: np.ndarray, particles):
+        """The particles whose basis functions include one of the owned dofs ``rows``: those that add to these rows
+        of a vector (a :class:`~fempm.particles.ParticleSubset`; a step's Gauss points are taken whole; collective)."""
+        if getattr(particles, "fixed", None) is not None:
+            return particles
+        marked = self._rows_marked
+        marked.values[:] = 0.0
+        marked.values[rows // self.space.bs, 0] = 1.0
+        marked.scatter_forward()  # a rank's particles add to the ghosts of other ranks' rows
+        _, functions = self.scalar_space.tabulate_particles(particles, 0, exact=False)
+        return ParticleSubset(particles, np.flatnonzero(marked.values[functions, 0].any(axis=1)))
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]

@@ -13,6 +13,7 @@ import fempm
 from fempm.cases import dambreak, hard
 from fempm.errors import InputError
 from fempm.hydrostatic import BELOW, DRY, FULL, HydrostaticPressure
+from fempm.simulation import build_solver
 from fempm.space import Space
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -111,3 +112,22 @@ def test_the_dam_break_split_is_the_same_on_1_and_2_ranks(tmp_path):
 def test_the_split_with_the_gauss_points_is_refused():
     with pytest.raises(InputError, match="pressure_work = 'split' is a form of the particles' quadrature"):
         dambreak.scene({"solver.pressure_work": "split", "solver.pressure_quadrature": "gauss"}, files=False)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("work", ["split", "by-parts"])
+def test_the_walls_excess_from_the_particles_near_them_is_the_whole_ones(work):
+    """The walls' reaction takes the forms' ``wall_force_excess`` at the contact dofs over the particles whose
+    functions include one of them (``GridSystem._adding_to``): at those rows the same numbers, to the bit, as
+    over all the particles, on one rank and on two (where particles add to other ranks' rows)."""
+    solver = build_solver(dambreak.scene({"solver.pressure_work": work}, files=False), MPI.COMM_WORLD)
+    for _ in range(60):
+        solver.step()
+    rows = solver.walls.normal
+    near = solver.system._adding_to(rows, solver.particles)
+    whole = solver.forms.wall_force_excess.assemble_vector(solver.particles).array[rows].copy()
+    part = solver.forms.wall_force_excess.assemble_vector(near).array[rows]
+    comm = solver.grid.comm
+    assert comm.allreduce(len(near)) < 0.35 * solver.particles.global_count()  # measured: 229 and 227 of 800
+    assert comm.allreduce(int(np.count_nonzero(whole)), op=MPI.SUM) > 0
+    assert comm.allreduce(bool(np.array_equal(part, whole)), op=MPI.LAND)
