@@ -29,7 +29,7 @@ from fempm.pressure_points import GaussPoints
 from fempm.particles import Particles
 from fempm.quadrature import ParticleForm
 from fempm.region import MatrixRegion
-from fempm.shifting import ParticleShifting
+from fempm.shifting import REST_SPEED, ParticleShifting
 from fempm.safeguards import EnergyWatch, PressureCheck, impact_impulse
 from fempm.space import GridFunction, Space
 from fempm.stepper import StepControl, Stepper
@@ -147,8 +147,11 @@ class ImplicitSolver(Stepper):
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
+        # with the split the shifting fades at rest (fempm.shifting)
+        rest_speed = (REST_SPEED * np.sqrt(np.linalg.norm(physics.gravity) * self.grid.h)
+                      if scheme.pressure_work == "split" else 0.0)
         self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES],
-                                           scheme.shifting_keeps_angular_momentum)
+                                           scheme.shifting_keeps_angular_momentum, rest_speed)
                           if scheme.shifting > 0 else None)
         self._values, self._divergence = np.empty((0, self._g2p.space.bs)), np.empty(0)  # G2P's (_particle_room)
         self._noise = (transfer.NoiseFilter(basis) if scheme.noise_rate > 0 and scheme.transfer in transfer.NOISE_FILTERED

@@ -9,14 +9,20 @@ whose neighbourhood is full moves a little down the gradient of the particles' o
 as in SPH's particle shifting (Lind et al. 2012; the anti-clumping term of Sun et al. 2017)::
 
     g_i  = sum_j V_j (1 + R (W_ij / W(dp))^4) grad_i W_ij
-    dr_i = -min(A |v_i| dt / dp, RELAXATION) dp^2 g_i / STIFFNESS,   |dr_i| <= MAX_SHIFT dp
+    dr_i = -min(A s_i dt / dp, RELAXATION) dp^2 g_i / STIFFNESS,   |dr_i| <= MAX_SHIFT dp
+    s_i  = |v_i| min(1, |v_i|^2 / v_rest^2),   v_rest = REST_SPEED sqrt(|g| h)  (with the split, else 0)
 
 with ``W`` the Wendland C2 kernel of smoothing length ``h_k = 1.3 dp`` (``dp``: the particles'
 spacing, ``sqrt(V)``) and ``R = 0.2``. ``g`` responds to a displacement ``d`` of a lattice by at most
 ``STIFFNESS d / dp^2``, so a relaxation of 1 undoes that stiffest disorder in one step, and beyond 2
 the shifts would overshoot and grow: per step the relaxation is ``A`` times the spacings the particle
 moved, at most ``RELAXATION``. Per unit time it is ``A |v| / dp`` whatever the step (less where the
-cap holds, at large steps); particles at rest stay.
+cap holds, at large steps); particles at rest stay. With the hydrostatic pressure's work split off
+(``solver.pressure_work = "split"``) the rate fades as ``|v|^3`` below the speed ``v_rest`` (``h`` the grid's cell):
+in water at rest the particles' speeds are the transfer's noise, and shifts four times the distance it carries
+them, fed back through the quadrature, stirred a column at rest that the split otherwise holds. In divergence form
+the column stirs without the shifting, and the fade made a disordered one stir faster (docs/notes-accuracy.md).
+Without gravity, and without the split, ``v_rest = 0``.
 
 The shift moves the quadrature points, not the material: a particle keeps its values. (Moved along
 its affine parts, ``v += C dr``, particles next to a free surface, shifted step after step the same
@@ -38,7 +44,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["ParticleShifting", "concentration_gradients", "kernel_at_spacing", "lattice_concentration", "spacing"]
+__all__ = ["REST_SPEED", "ParticleShifting", "concentration_gradients", "kernel_at_spacing", "lattice_concentration", "spacing"]
 
 SMOOTHING = 1.3  #: the kernel's smoothing length over the particle spacing
 TENSILE = 0.2  #: R: the anti-clumping term's weight
@@ -49,6 +55,8 @@ STIFFNESS = 3.0
 #: the largest relaxation per step, of that stiffest disorder: under 2, where the relaxation would overshoot and grow
 RELAXATION = 1.5
 FULL = 0.95  #: a particle moves where its concentration is at least this share of a lattice's
+#: the speed below which the shifting fades, a share of ``sqrt(|g| h)`` (see the module)
+REST_SPEED = 1e-2
 
 
 @numba.njit(cache=True, inline="always")
@@ -186,14 +194,18 @@ def _add_images(xs, ys, vs, start, nbx, nby, lower, upper, mirror, support, inv_
 
 
 @numba.njit(cache=True)
-def _shifts(v, grad, movable, dt, rate, stiffness, cap, mass, shifts):
-    """``-min(rate |v| dt, RELAXATION) grad / stiffness`` (capped at ``cap``) at the ``movable`` particles, 0
-    elsewhere; returns their mass and mass-weighted sum of shifts (mass, sx, sy)."""
+def _shifts(v, grad, movable, dt, rate, stiffness, cap, rest, mass, shifts):
+    """``-min(rate s dt, RELAXATION) grad / stiffness`` (capped at ``cap``), ``s = |v| min(1, |v|^2 / rest^2)``,
+    at the ``movable`` particles, 0 elsewhere; returns their mass and mass-weighted sum of shifts (mass, sx, sy)."""
     total = np.zeros(3)
     for i in range(v.shape[0]):
         if not movable[i]:
             continue
-        s = min(rate * np.sqrt(v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]) * dt, RELAXATION) / stiffness
+        speed2 = v[i, 0] * v[i, 0] + v[i, 1] * v[i, 1]
+        speed = np.sqrt(speed2)
+        if speed2 < rest * rest:
+            speed *= speed2 / (rest * rest)
+        s = min(rate * speed * dt, RELAXATION) / stiffness
         dx, dy = -s * grad[i, 0], -s * grad[i, 1]
         length = np.sqrt(dx * dx + dy * dy)
         if length > cap:
@@ -276,10 +288,13 @@ class ParticleShifting:
         strength: ``A``, the relaxation per spacing moved.
         mirror: which of the grid's sides (left, right, bottom, top) reflect: its walls.
         keep_angular_momentum: the shifts take the common turn that makes them add no angular momentum.
+        rest_speed: ``v_rest`` of the module, below which the shifting fades (0: it does not).
     """
 
-    def __init__(self, particles, strength: float, mirror, keep_angular_momentum: bool = False):
+    def __init__(self, particles, strength: float, mirror, keep_angular_momentum: bool = False,
+                 rest_speed: float = 0.0):
         self.strength, self.mirror = float(strength), np.asarray(mirror, dtype=np.bool_)
+        self.rest_speed = float(rest_speed)
         self.keep_angular_momentum = keep_angular_momentum
         self.dp = spacing(particles)
         self.hk = SMOOTHING * self.dp
@@ -297,7 +312,7 @@ class ParticleShifting:
         movable = conc >= self.full
         v, mass = particles["velocity"], particles["mass"]
         total = grid.comm.allreduce(_shifts(v, grad, movable, dt, self.strength / dp, STIFFNESS / dp**2,
-                                            MAX_SHIFT * dp, mass, shifts))
+                                            MAX_SHIFT * dp, self.rest_speed, mass, shifts))
         if total[0] == 0:
             return shifts
         mean, mean_velocity, turn = total[1:] / total[0], np.zeros(2), 0.0

@@ -78,14 +78,25 @@ def test_the_hydrostatic_pressure_is_zero_without_gravity_along_y():
 
 
 @pytest.mark.parametrize("share, time, bound", [
-    (1e-4, 2.0, 1e-3),  # measured 1.0e-4 m/s (the divergence form: 0.20 m/s, the work by parts 2.8e-4)
-    (0.3, 4.0, 0.1),  # a flow's disorder: measured 4.9e-2 m/s (the divergence form: 0.22, the work by parts 8.0e-3)
+    (1e-4, 2.0, 1e-3),  # measured 9.7e-5 m/s (the divergence form: 0.20 m/s, the work by parts 2.8e-4)
+    (0.3, 4.0, 0.1),  # a flow's disorder: measured 6.0e-2 m/s (the divergence form: 0.22, the work by parts 8.0e-3)
 ])
 def test_the_split_keeps_a_disordered_column_calmer(share, time, bound):
     """The dam break's column in a tank as wide as it, the shipped scene's step and solver, its particles moved at
     random by at most ``share`` of their spacing (docs/still-water.md's study): its fastest particle at ``time``."""
     fastest = still_water.fastest_at("column", "split", share)[still_water.REST_TIMES.index(time)]
     assert float(fastest) < bound
+
+
+def test_the_split_holds_a_column_moved_by_1e_4_of_a_spacing_to_8_s():
+    """The column of the last test moved by 1e-4 of a spacing, to 8 s: the shifting fades at rest (fempm.shifting),
+    so that shifts larger than the particles' own motion do not stir it."""
+    changes = {"gauges": None, "time.end": 8.0, **still_water.CONTAINERS["column"], **still_water.VARIANTS["split"]}
+    solver = build_solver(dambreak.scene(changes, files=False), MPI.COMM_WORLD)
+    still_water.disorder(solver, 1e-4)
+    while solver.time < 8.0 - 1e-9:
+        solver.step(until=8.0)
+    assert solver.fastest() < 5e-3  # measured 1.0e-3 m/s (without the fade 3.2e-2; the divergence form 0.26 at 4 s)
 
 
 def test_the_split_leaves_the_dam_break_and_its_large_steps_as_they_were():

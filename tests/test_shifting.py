@@ -115,6 +115,21 @@ def test_particles_at_rest_or_along_a_free_surface_stay_and_the_mass_does_not_mo
     assert np.abs(water["mass"] @ shifts).max() < 1e-15 * water["mass"].sum() * dp  # measured 2e-19
 
 
+def test_below_the_rest_speed_the_shifts_fade_as_the_speed_squared():
+    """A disordered lattice at one speed: at half the rest speed the shifts are a quarter of those without a rest
+    speed (each particle's and their mean alike), at twice it the same to the bit."""
+    shifts = {}
+    for speed, rest in ((0.1, 0.0), (0.1, 0.2), (0.4, 0.0), (0.4, 0.2)):  # no shift reaches the cap
+        water = _water(MPI.COMM_SELF, speed=speed)
+        dp = shifting.spacing(water)
+        water.fields["x"] = np.clip(water.x + np.random.default_rng(3).uniform(-0.25, 0.25, water.x.shape) * dp,
+                                    1e-9, 1 - 1e-9)
+        shifts[speed, rest] = shifting.ParticleShifting(water, A, MIRRORS, rest_speed=rest)(water, DT)
+    assert np.abs(shifts[0.1, 0.0]).max() > 0.01 * dp  # measured 0.047 dp: the case moves
+    assert np.allclose(shifts[0.1, 0.2], 0.25 * shifts[0.1, 0.0], rtol=1e-12, atol=0.0)
+    assert np.array_equal(shifts[0.4, 0.2], shifts[0.4, 0.0])
+
+
 @pytest.mark.mpi
 def test_shifts_are_the_same_on_one_rank_and_on_all():
     results = {}

@@ -306,7 +306,7 @@ def test_column_stays_at_rest_for_14_s():
                    "with PSPG's tau 4 or 1/4 times. FLIP holds this start (8e-5 m/s at 4 s) but not a flow's disorder "
                    "(0.08-0.18 m/s), the Gauss option both (2.4e-4 m/s; 4e-3 to 9e-3 m/s), the pressure's work by parts "
                    "this start (2.8e-4 m/s at 2 s, tests/test_pressure_work.py) but not a flow's disorder (1e-2 m/s), the split "
-                   "this start (1.0e-4 m/s at 2 s, 3.2e-2 at 8 s) and a flow's disorder to 4.9e-2 m/s (tests/test_hydrostatic.py): the "
+                   "this start (9.7e-5 m/s at 2 s, 1.0e-3 at 8 s) and a flow's disorder to 6.0e-2 m/s (tests/test_hydrostatic.py): the "
                    "hydrostatic pressure times the particle quadrature's error in div(p w) (docs/notes-accuracy.md, "
                    "'Water at rest from a disordered start' and 'Where the disordered column's energy comes from')")
 def test_a_column_at_rest_from_slightly_disordered_particles_stays_at_rest():
