@@ -377,7 +377,7 @@ class Particles:
 
 class ParticleSubset:
     """Some of a rank's particles (``index``, kept in their order), read by the forms' assembly as the particles
-    are: a vector assembled over them is the particles' own at every dof whose functions hold no other particle."""
+    are: a vector assembled over them equals the one over all the particles at every dof no other particle adds to."""
 
     def __init__(self, particles: Particles, index: np.ndarray):
         self._particles, self._index = particles, index
