@@ -10,7 +10,7 @@ import pytest
 from mpi4py import MPI
 
 import fempm
-from fempm.cases import dambreak, hard
+from fempm.cases import dambreak, hard, vortices
 from fempm.errors import InputError
 from fempm.hydrostatic import BELOW, DRY, FULL, HydrostaticPressure
 from fempm.simulation import build_solver
@@ -108,6 +108,31 @@ def test_the_split_leaves_the_dam_break_and_its_large_steps_as_they_were():
     assert noise[0] < 0.035 and noise[1] < 0.05  # measured 2.4 % and 4.3 % (the divergence form: 2.7 % and 4.3 %)
     outcome = hard.run_case("dt-10x", pressure_work="split")
     assert outcome.run.status == "completed"  # the work by parts stops at 0.30 s
+
+
+def _gresho_in_a_full_tank(pressure_work: str) -> dict:
+    """The Gresho vortex (64², max u dt/h = 0.4, the verification cases' particle handling) in the unit box full of
+    water under gravity, to t = 1: the flow's shear disorders the particles in water 64 cells deep."""
+    return vortices.gresho("affine-FLIP", 64, 0.4 / 64, 1.0, shifting=vortices.SHIFTING, surface_aware=True,
+                           pic={"pressure_work": pressure_work}, gravity=(0.0, -9.81))
+
+
+def test_the_split_keeps_a_vortex_in_a_full_tank_under_gravity():
+    """Under gravity the hydrostatic pressure times the particle quadrature's error drives the disordered particles
+    in divergence form (next test); with its work by parts the vortex keeps as it does without gravity."""
+    r = _gresho_in_a_full_tank("split")
+    assert r["status"] == "completed"
+    assert abs(r["ke"]) < 0.015  # measured -0.77 % (without gravity, divergence form: -1.09 % at t = 1)
+    assert abs(r["L"]) < 0.008  # measured -0.376 % (without gravity, divergence form: -0.19 %)
+    assert r["profile"] < 0.04  # measured 2.6 % (without gravity, divergence form: 2.5 %)
+
+
+@pytest.mark.xfail(strict=True, reason="an open defect of the divergence form (README, known limits): in a full tank "
+                   "under gravity the vortex gains 21.8 % of its energy by t = 1 and its profile is 37 % off (at t = 3: "
+                   "+58 %, the angular momentum -36 %); the split keeps it (last test)")
+def test_in_divergence_form_a_vortex_in_a_full_tank_under_gravity_keeps_its_energy():
+    r = _gresho_in_a_full_tank("divergence")
+    assert abs(r["ke"]) < 0.015 and r["profile"] < 0.04
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns its own mpirun")

@@ -65,13 +65,15 @@ CENTRE = np.array([0.5, 0.5])
 def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceleration, basis: str = "bspline",
                comm=MPI.COMM_WORLD, alpha: float = Scheme.alpha, per_cell: int = 2,
                pspg: bool = Scheme.pspg, shifting: float = Scheme.shifting, solver_type=ImplicitSolver,
-               surface_aware: bool = Scheme.surface_aware, pic: dict | None = None) -> ImplicitSolver:
+               surface_aware: bool = Scheme.surface_aware, pic: dict | None = None,
+               gravity=(0.0, 0.0)) -> ImplicitSolver:
     """The unit slip box filled with ``per_cell`` x ``per_cell`` particles per cell at the given
     velocity and acceleration (functions of the positions returning ``(values (n, 2), gradients
     (n, 2, 2))``), with the volume correction ``alpha`` (``surface_aware``: :attr:`Scheme.surface_aware`),
     PSPG on or off and particle ``shifting``; ``pic``: :class:`Scheme` fields of the PIC share and the
     shifting over the variant's (e.g. :data:`NOISE_ONLY`); ``solver_type`` makes the solver from the basis, particles,
-    physics and scheme."""
+    physics and scheme. Under ``gravity`` the box is a full tank: the pressure balances it hydrostatically, and the
+    given acceleration is the flow's alone."""
     grid = Grid.from_cells(comm, (0.0, 0.0), (1.0, 1.0), (cells, cells))
     water = Particles(grid)
     water.seed(Rectangle((0.0, 0.0), (1.0, 1.0)), per_cell=per_cell, density=RHO)
@@ -83,7 +85,7 @@ def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceler
         water[name][:] = value
         if scheme.transfer != "flip":
             water[f"affine_{name}"][:] = grad
-    return solver_type(BASES[basis](grid), water, Physics(viscosity=RHO * nu, gravity=(0.0, 0.0)), scheme)
+    return solver_type(BASES[basis](grid), water, Physics(viscosity=RHO * nu, gravity=tuple(gravity)), scheme)
 
 
 def kinetic_energy(particles) -> float:
@@ -234,16 +236,17 @@ def gresho_measures(solver) -> dict:
 
 def gresho(variant: str, cells: int, dt: float, end: float = 3.0, basis: str = "bspline", per_cell: int = 2,
            shifting: float = Scheme.shifting, solver_type=ImplicitSolver, alpha: float = Scheme.alpha,
-           surface_aware: bool = Scheme.surface_aware, pic: dict | None = None) -> dict:
+           surface_aware: bool = Scheme.surface_aware, pic: dict | None = None, gravity=(0.0, 0.0)) -> dict:
     """The Gresho vortex to ``end`` (``per_cell`` x ``per_cell`` particles per cell, particle ``shifting``):
     relative changes of kinetic energy (``ke``) and angular momentum (``L``) at the end, the angular momentum's
     change of largest magnitude after any step (``L_largest``), the u_theta error at the end
     (``profile``) and at the start (``profile0``), the largest smoothed density over the water's at the
     end (``crowding``, eq. 2: where particles gather) and the smoothed density at the vortex's centre
-    (``core``: below 1 where the core has thinned); ``solver_type``, ``alpha``, ``surface_aware``, ``pic``: see
-    :func:`box_solver`."""
+    (``core``: below 1 where the core has thinned); ``solver_type``, ``alpha``, ``surface_aware``, ``pic``,
+    ``gravity``: see :func:`box_solver`."""
     solver = box_solver(variant, cells, dt, 0.0, *_gresho_fields(), basis, alpha=alpha, per_cell=per_cell,
-                        shifting=shifting, solver_type=solver_type, surface_aware=surface_aware, pic=pic)
+                        shifting=shifting, solver_type=solver_type, surface_aware=surface_aware, pic=pic,
+                        gravity=gravity)
     start = gresho_measures(solver)
     history = []
     run = advance(solver, end, lambda s: history.append(angular_momentum(s)))
