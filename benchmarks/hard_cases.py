@@ -7,7 +7,7 @@ each one's measures as a row and writes ``docs/hard-cases.md`` from ``templates/
     python benchmarks/hard_cases.py [--full] [--doc docs/hard-cases.md] [--case NAME ...]
     python benchmarks/hard_cases.py --pressure-quadrature gauss    # docs/hard-cases-gauss.md
     python benchmarks/hard_cases.py --pressure-work by-parts       # docs/hard-cases-by-parts.md
-    python benchmarks/hard_cases.py --pressure-work split          # docs/hard-cases-split.md
+    python benchmarks/hard_cases.py --pressure-work divergence     # docs/hard-cases-divergence.md
 
 Default: the short versions the tests run in CI; ``--full``: the long ones too (hours: the
 40 s dam break at the seed's step among them).
@@ -33,9 +33,9 @@ OPTIONS = {
     "by-parts": (" --pressure-work by-parts", "hard-cases-by-parts.md", " This page: the same cases with the "
                  "pressure's work by parts where the water is deep (`solver.pressure_work = \"by-parts\"`), which the "
                  "tests do not assert on."),
-    "split": (" --pressure-work split", "hard-cases-split.md", " This page: the same cases with the hydrostatic "
-              "pressure's work by parts and the rest in divergence form (`solver.pressure_work = \"split\"`, "
-              "`fempm/hydrostatic.py`), which the tests assert on for ten times the seed's step only."),
+    "divergence": (" --pressure-work divergence", "hard-cases-divergence.md", " This page: the same cases with the "
+                   "pressure's work in divergence form throughout (`solver.pressure_work = \"divergence\"`, method.md's "
+                   "`-p div w`; the shipped dam break's until it took the split), which the tests do not assert on."),
 }
 
 
@@ -54,14 +54,15 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--full", action="store_true", help="the long versions too")
     parser.add_argument("--doc", type=Path, default=None, help="markdown output (default docs/hard-cases.md, "
-                        "with an option docs/hard-cases-gauss.md, docs/hard-cases-by-parts.md or docs/hard-cases-split.md)")
+                        "with an option docs/hard-cases-gauss.md, docs/hard-cases-by-parts.md or docs/hard-cases-divergence.md)")
     parser.add_argument("--pressure-quadrature", choices=PRESSURE_QUADRATURES, default="particles",
                         help="where the pressure's terms are integrated (solver.pressure_quadrature)")
-    parser.add_argument("--pressure-work", choices=PRESSURE_WORKS, default="divergence",
-                        help="how the momentum takes the pressure's work (solver.pressure_work)")
+    parser.add_argument("--pressure-work", choices=PRESSURE_WORKS, default=None,
+                        help="how the momentum takes the pressure's work (solver.pressure_work; default: each case's "
+                        "own, the split in the dam break's)")
     parser.add_argument("--case", nargs="+", choices=list(CASES), default=list(CASES), help="only these cases")
     args = parser.parse_args(argv)
-    if args.pressure_quadrature == "gauss" and args.pressure_work != "divergence":
+    if args.pressure_quadrature == "gauss" and args.pressure_work not in (None, "divergence"):
         parser.error(f"--pressure-work {args.pressure_work} is a form of the particles' quadrature: not with "
                      "--pressure-quadrature gauss")
     outcomes = {False: [], True: []}
@@ -73,7 +74,7 @@ def main(argv=None):
                 print(f"{'full' if full else 'short'}: " + " | ".join(
                     f"{k}: {v}" for k, v in zip(COLUMNS, row(outcomes[full][-1]))), flush=True)
     if MPI.COMM_WORLD.rank == 0:
-        option = "gauss" if args.pressure_quadrature == "gauss" else None if args.pressure_work == "divergence" else args.pressure_work
+        option = "gauss" if args.pressure_quadrature == "gauss" else args.pressure_work
         text = markdown(outcomes[False], outcomes[True], option)
         print(text)
         pages.write(args.doc or pages.ROOT / "docs" / (OPTIONS[option][1] if option else "hard-cases.md"), text)

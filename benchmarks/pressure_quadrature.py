@@ -151,7 +151,7 @@ class GaussPressure(ImplicitSolver):
                   "correction": float(weighting.corrected)}
         _set_fields(particles, fields)
         super().__init__(basis, particles, physics, dataclasses.replace(
-            scheme or Scheme(), forms=str(FORMS), pressure_quadrature="gauss"), controls)
+            scheme or Scheme(), forms=str(FORMS), pressure_quadrature="gauss", pressure_work="divergence"), controls)
 
     def quadrature_points(self) -> StepPoints:
         """The particles and the Gauss points of the cells holding particles and their neighbours
@@ -231,7 +231,7 @@ class BlendedPressure(ImplicitSolver):
         self.fields = {"blend_low": blend.low, "blend_high": blend.high, "blend_terms": float(blend.all_terms)}
         _set_fields(particles, self.fields)
         super().__init__(basis, particles, physics, dataclasses.replace(
-            scheme or Scheme(), forms=str(BLENDED_FORMS), pressure_quadrature="gauss"), controls)
+            scheme or Scheme(), forms=str(BLENDED_FORMS), pressure_quadrature="gauss", pressure_work="divergence"), controls)
 
     def quadrature_points(self) -> StepPoints:
         """The particles and the Gauss points of the cells where ``D`` may be above zero (a function's
@@ -256,18 +256,15 @@ def solver_type(weighting: str, surface_aware: bool = False):
 def scene_solver(weighting: str, scene) -> ImplicitSolver:
     """The solver of a scene with a weighting's quadrature."""
     solver = build_solver(scene)
-    w = WEIGHTINGS[weighting]
-    return solver if w is None else _maker(w)(solver.basis, solver.particles, solver.physics, solver.scheme,
-                                              solver.controls)
+    return _maker(WEIGHTINGS[weighting])(solver.basis, solver.particles, solver.physics, solver.scheme, solver.controls)
 
 
 def _maker(w):
     """The solver type of a weighting (``None``: the particles; :data:`SHIPPED`: ``pressure_quadrature = "gauss"``;
     :data:`BY_PARTS`: ``pressure_work = "by-parts"``)."""
-    if w is None:
-        return ImplicitSolver
-    if w in (SHIPPED, BY_PARTS):
-        option = {"pressure_quadrature": "gauss"} if w == SHIPPED else {"pressure_work": "by-parts"}
+    if w in (None, SHIPPED, BY_PARTS):  # the study's rows compare with the divergence form at the particles
+        option = {None: {"pressure_work": "divergence"}, SHIPPED: {"pressure_quadrature": "gauss", "pressure_work": "divergence"},
+                  BY_PARTS: {"pressure_work": "by-parts"}}[w]
 
         def shipped(basis, particles, physics=None, scheme=None, controls=None):
             return ImplicitSolver(basis, particles, physics, dataclasses.replace(scheme or Scheme(), **option), controls)

@@ -46,8 +46,9 @@ TOP_PROBE = "right_y0.0584"  #: the highest right-wall probe, where the run-up a
 #: the runs of the page: key, label, scene changes
 STUDY = [
     ("default", "default (2 × 2 per cell, adaptive step: Courant 0.8, dt ≤ 1e-2; α 0.1 surface-aware, affine-FLIP, "
-                "shifting A = 4)", {}),
+                "shifting A = 4, the split)", {}),
     ("unshifted", "no particle shifting", {"solver.shifting": 0.0}),
+    ("divergence", "the divergence form (method.md's; the default until the split)", {"solver.pressure_work": "divergence"}),
     ("ppc9", "3 × 3 per cell", {"bodies.0.particles_per_cell": 9}),
     ("ppc16", "4 × 4 per cell, Courant 0.6", {"bodies.0.particles_per_cell": 16, "time.courant": 0.6}),
     ("ppc16_unshifted", "4 × 4 per cell, Courant 0.6, no shifting (the scene until now)",

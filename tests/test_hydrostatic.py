@@ -84,14 +84,14 @@ def test_the_hydrostatic_pressure_is_zero_without_gravity_along_y():
 def test_the_split_keeps_a_disordered_column_calmer(share, time, bound):
     """The dam break's column in a tank as wide as it, the shipped scene's step and solver, its particles moved at
     random by at most ``share`` of their spacing (docs/still-water.md's study): its fastest particle at ``time``."""
-    fastest = still_water.fastest_at("column", "split", share)[still_water.REST_TIMES.index(time)]
+    fastest = still_water.fastest_at("column", "shipped", share)[still_water.REST_TIMES.index(time)]
     assert float(fastest) < bound
 
 
 def test_the_split_holds_a_column_moved_by_1e_4_of_a_spacing_to_8_s():
     """The column of the last test moved by 1e-4 of a spacing, to 8 s: the shifting fades at rest (fempm.shifting),
     so that shifts larger than the particles' own motion do not stir it."""
-    changes = {"gauges": None, "time.end": 8.0, **still_water.CONTAINERS["column"], **still_water.VARIANTS["split"]}
+    changes = {"gauges": None, "time.end": 8.0, **still_water.CONTAINERS["column"], **still_water.VARIANTS["shipped"]}
     solver = build_solver(dambreak.scene(changes, files=False), MPI.COMM_WORLD)
     still_water.disorder(solver, 1e-4)
     while solver.time < 8.0 - 1e-9:

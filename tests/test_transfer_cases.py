@@ -301,29 +301,33 @@ def test_column_stays_at_rest_for_14_s():
     assert 0 < r["volume"] < 0.0021  # measured +0.197 %
 
 
-@pytest.mark.xfail(strict=True, reason="an open defect: the column holds at rest only from the seeding lattice. Its "
-                   "particles moved by at most 1e-4 of their spacing, at random, it reaches 9.4e-2 m/s at 1.5 s (by 1e-5: "
-                   "1.2e-2 m/s at 6 s; by 1e-3: 0.11 m/s at 0.5 s; by 0.3, a flow's disorder: 0.2-0.4 m/s from 0.5 s on); "
-                   "also at a fixed 1 ms step, without the end-of-step map (later), the shifting, the volume correction, "
-                   "with PSPG's tau 4 or 1/4 times. FLIP holds this start (8e-5 m/s at 4 s) but not a flow's disorder "
-                   "(0.08-0.18 m/s), the Gauss option both (2.4e-4 m/s; 4e-3 to 9e-3 m/s), the pressure's work by parts "
-                   "this start (2.8e-4 m/s at 2 s, tests/test_pressure_work.py) but not a flow's disorder (1e-2 m/s), the split "
-                   "this start (9.7e-5 m/s at 2 s, 1.0e-3 at 8 s) and a flow's disorder to 6.0e-2 m/s (tests/test_hydrostatic.py): the "
-                   "hydrostatic pressure times the particle quadrature's error in div(p w) (docs/notes-accuracy.md, "
-                   "'Water at rest from a disordered start' and 'Where the disordered column's energy comes from')")
-def test_a_column_at_rest_from_slightly_disordered_particles_stays_at_rest():
+_DIVERGENCE_DEFECT = pytest.mark.xfail(strict=True, reason=(
+    "an open defect of the divergence form (solver.pressure_work = 'divergence', the shipped scene's until the split): "
+    "its column holds at rest only from the seeding lattice. Its particles moved by at most 1e-4 of their spacing, at "
+    "random, it reaches 9.4e-2 m/s at 1.5 s (by 1e-5: 1.2e-2 m/s at 6 s; by 1e-3: 0.11 m/s at 0.5 s; by 0.3, a flow's "
+    "disorder: 0.2-0.4 m/s from 0.5 s on); also at a fixed 1 ms step, without the end-of-step map (later), the "
+    "shifting, the volume correction, with PSPG's tau 4 or 1/4 times. FLIP holds this start (8e-5 m/s at 4 s) but not "
+    "a flow's disorder (0.08-0.18 m/s), the Gauss option both (2.4e-4 m/s; 4e-3 to 9e-3 m/s), the pressure's work by "
+    "parts this start (2.8e-4 m/s at 2 s, tests/test_pressure_work.py) but not a flow's disorder (1e-2 m/s), the split "
+    "this start (1.0e-4 m/s at 2 s, 1.0e-3 at 8 s) and a flow's disorder to 6.0e-2 m/s (tests/test_hydrostatic.py): the "
+    "hydrostatic pressure times the particle quadrature's error in div(p w) (docs/notes-accuracy.md, 'Water at rest "
+    "from a disordered start' and 'Where the disordered column's energy comes from')"))
+
+
+@pytest.mark.parametrize("work", ["split", pytest.param("divergence", marks=_DIVERGENCE_DEFECT)])
+def test_a_column_at_rest_from_slightly_disordered_particles_stays_at_rest(work):
     """The dam break's column in a tank as wide as it, the shipped scene's step and solver, its particles moved
     at random by at most 1e-4 of their spacing (0.73 micrometres): a start no flow ever leaves as exact as a lattice."""
     width = column.WIDTH
     changes = {"gauges": None, "time.end": 2.0, "domain.upper": [width, 4 * width], "domain.cells": [10, 40],
-               "bodies.0.upper": [width, column.HEIGHT]}
+               "bodies.0.upper": [width, column.HEIGHT], "solver.pressure_work": work}
     solver = build_solver(dambreak.scene(changes, files=False), MPI.COMM_WORLD)
     spacing = width / 20
     p = solver.particles
     p.fields["x"] = solver.walls.keep_inside(p.x + 1e-4 * spacing * np.random.default_rng(1).uniform(-1, 1, p.x.shape))
     while solver.time < 2.0 - 1e-9:
         solver.step(until=2.0)
-    assert solver.fastest() < 1e-3  # measured 0.17 m/s (from the lattice itself: 9.3e-5 m/s)
+    assert solver.fastest() < 1e-3  # measured 1.0e-4 m/s, the shipped split (the divergence form 0.17 m/s; from the lattice 9.3e-5 m/s)
 
 
 def test_column_stays_at_rest_at_ten_ms_steps():
@@ -407,8 +411,9 @@ def test_dambreak_front_converges_as_dt_falls():
     # measured 1.861, 1.868, 1.878, 1.887 % (6.25e-5 s: 1.891 %) with the noise's linear fit; with its mean before 1.988,
     # 2.029, 2.064 %; the whole share alone at 100/s 1.933, 1.943, 1.959 %
     assert max(errors) < 0.0195
-    # measured 0.230, 0.097, 0.058 % (then 0.025 %): about first order
-    assert halvings[1] < 0.6 * halvings[0] and halvings[2] < 0.75 * halvings[1]
+    # measured 0.206, 0.132, 0.048 % with the hydrostatic pressure's work split off (the scene's; the errors 1.865, 1.871,
+    # 1.883, 1.891 %); in divergence form 0.230, 0.097, 0.058 % (then 0.025 %): about first order
+    assert halvings[1] < 0.7 * halvings[0] and halvings[2] < 0.75 * halvings[1]
     assert max(errors[1:3]) <= errors[0] + 0.0003  # measured +0.017 points at dt/4 (+0.076 with the mean)
 
 

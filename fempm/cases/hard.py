@@ -218,12 +218,15 @@ class Watch:
 
 
 def run_case(name: str, full: bool = False, comm=MPI.COMM_WORLD, pressure_quadrature: str = "particles",
-             pressure_work: str = "divergence") -> Outcome:
+             pressure_work: str | None = None) -> Outcome:
     """Build case ``name``, run it to its end time (short, or ``full``) and measure it; ``pressure_quadrature``,
-    ``pressure_work``: the scheme's (:class:`fempm.options.Scheme`), the case's solver remade with them if others."""
+    ``pressure_work``: the scheme's (:class:`fempm.options.Scheme`; None: the case's own, the divergence form with
+    the Gauss points), the case's solver remade with them if others."""
     case = CASES[name]
     end = case.full if full else case.short
     solver = (case.build_full if full and case.build_full else case.build)(comm)
+    if pressure_work is None:
+        pressure_work = "divergence" if pressure_quadrature == "gauss" else solver.scheme.pressure_work
     options = {"pressure_quadrature": pressure_quadrature, "pressure_work": pressure_work}
     if any(getattr(solver.scheme, key) != value for key, value in options.items()):
         solver = ImplicitSolver(solver.basis, solver.particles, solver.physics, replace(solver.scheme, **options),

@@ -269,7 +269,8 @@ def test_a_long_run_settles_with_its_volume(full):
         # across such variants)
         # measured 2.280, 1.0, 0.0020 to 40 s with G2P over the moved functions (2.250, 1.0, 0.003 with the default
         # shares, docs/hard-cases.md): its first 2 s are test_dam_break_of_water's, whose jet this is
-        assert_sound(o, 800, speed_ratio=2.3, energy_max=1.0 + 0.009, energy_rise=0.005)
+        # with the hydrostatic pressure's work split off (the scene's): the energy's largest rise 0.0066 over 40 s
+        assert_sound(o, 800, speed_ratio=2.3, energy_max=1.0 + 0.009, energy_rise=0.008)
     else:  # the big step's energy error: the first 2 s are test_dam_break_at_ten_times_the_seeds_step's
         assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.037)
     t, centroid = o.history["t"], np.asarray(o.history["centroid"])
@@ -277,12 +278,14 @@ def test_a_long_run_settles_with_its_volume(full):
         assert o.surface_height == pytest.approx(SETTLED_DEPTH, rel=0.10)
         # its mean depth over the last 5 s, twice its centroid's height: 75.8 mm, std 1.5 mm, with PSPG's tau free of
         # the step (75.4 mm with tau's T = max(dt, ...)) and the scene's particle shifting (without 76.4 mm, std 1.0 mm
-        # over those seconds; before the crowding tolerance 77.05; 76.92 with PSPG's viscous part)
-        assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0754, rel=0.01)
+        # over those seconds; before the crowding tolerance 77.05; 76.92 with PSPG's viscous part); 76.3 mm with the
+        # hydrostatic pressure's work split off (the scene's)
+        assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0763, rel=0.01)
     else:  # after 5 s the layer still sloshes, and its surface at one instant moves with round-off (75.1 and 67.4 mm
         # for two codes that differ in the shifting's last bits): its mean depth over the last second, twice its
-        # centroid's height, measured 75.3 and 74.6 mm (std 1.5 mm), within 4 % of SETTLED_DEPTH = 73 mm
-        assert 2 * centroid[t >= t[-1] - 1.0, 1].mean() == pytest.approx(SETTLED_DEPTH, rel=0.04)
+        # centroid's height, measured 76.5 mm with the hydrostatic pressure's work split off (the scene's
+        # solver.pressure_work; the divergence form 75.3 and 74.6 mm, std 1.5 mm), within 6 % of SETTLED_DEPTH = 73 mm
+        assert 2 * centroid[t >= t[-1] - 1.0, 1].mean() == pytest.approx(SETTLED_DEPTH, rel=0.06)
     # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.264 at 5 s
     # (from a_0 = 0 0.277; start-configuration divergence 0.280)
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.29, 1.4 * SETTLED_DEPTH / hc.H)
