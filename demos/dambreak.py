@@ -58,6 +58,11 @@
 # volume correction of method.md eq. (3): $\tilde\rho$ is the smoothed density of the particles,
 # and where they crowd ($\tilde\rho > \rho$) the step asks for expansion. The integrals are sums
 # over the particles, $\int f\,\mathrm{d}x = \sum_p V_p f(x_p)$; the inertia is lumped.
+# The shipped scene adds to the pressure's work an exact zero, $\int \nabla\cdot(D H w)\,\mathrm{d}x$, with $H$ the
+# hydrostatic pressure estimated each step from the water's depth and $D$ a weight that vanishes at the free
+# surface: at the particles the hydrostatic part then works through $w\cdot\nabla(DH)$, not through the
+# quadrature's error in $\nabla\cdot(p\,w)$, and still or deep water stays calm (`solver.pressure_work = "split"`,
+# `fempm/hydrostatic.py`).
 # These forms are `forms/incompressible.py`, one function per term: edit it, or pass a copy with
 # `--forms`, to change the physics.
 
