@@ -260,8 +260,8 @@ def scene_solver(weighting: str, scene) -> ImplicitSolver:
 
 
 def _maker(w):
-    """The solver type of a weighting (``None``: the particles; :data:`SHIPPED`: ``pressure_quadrature = "gauss"``;
-    :data:`BY_PARTS`: ``pressure_work = "by-parts"``)."""
+    """The solver type of a weighting (``None``: the particles, in divergence form, whatever the scene's treatment;
+    :data:`SHIPPED`: ``pressure_quadrature = "gauss"``; :data:`BY_PARTS`: ``pressure_work = "by-parts"``)."""
     if w in (None, SHIPPED, BY_PARTS):  # the study's rows compare with the divergence form at the particles
         option = {None: {"pressure_work": "divergence"}, SHIPPED: {"pressure_quadrature": "gauss", "pressure_work": "divergence"},
                   BY_PARTS: {"pressure_work": "by-parts"}}[w]
