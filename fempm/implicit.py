@@ -256,7 +256,8 @@ class ImplicitSolver(Stepper):
         phi = rho[:, 0] / self._reference_density  # the wet fraction (fempm.density)
         if s.constants["by_parts"] or s.constants["split"]:  # the weight of the work by parts, the correction's deep water
             g = float(np.linalg.norm(self.physics.gravity))
-            speed = (np.linalg.norm(s.fields["grid_velocity"].values, axis=1) / np.sqrt(g * self.grid.h)
+            v = s.fields["grid_velocity"].values
+            speed = (np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) / np.sqrt(g * self.grid.h)
                      if g > 0 else None)
             s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0] = self._deep_water.masks(phi, speed)
             if self._hydrostatic is not None:  # the split's hydrostatic pressure (fempm.hydrostatic)

@@ -41,6 +41,20 @@ def _end_state(du, v, a, dt, beta, gamma, v_new, a_new):
             v_new[f, c] = _end_velocity(v[f, c], a[f, c], a_new[f, c], dt, gamma)
 
 
+@numba.njit(cache=True)
+def _touching(marks, functions):
+    """The particles (rows of ``functions``, their local functions) with a function whose ``marks`` is not zero."""
+    out = np.empty(functions.shape[0], dtype=np.int64)
+    count = 0
+    for p in range(functions.shape[0]):
+        for f in functions[p]:
+            if marks[f] != 0.0:
+                out[count] = p
+                count += 1
+                break
+    return out[:count]
+
+
 class StepForms:
     """The ``residual`` of a forms file and its Jacobian ``dR/dU``, each compiled once by ``compile``
     (a function of a form builder returning an assembled form: particle or Gauss quadrature).
@@ -215,7 +229,7 @@ class GridSystem:
         marked.values[rows // self.space.bs, 0] = 1.0
         marked.scatter_forward()  # a rank's particles add to the ghosts of other ranks' rows
         _, functions = self.scalar_space.tabulate_particles(particles, 0, exact=False)
-        return ParticleSubset(particles, np.flatnonzero(marked.values[functions, 0].any(axis=1)))
+        return ParticleSubset(particles, _touching(marked.values[:, 0], functions))
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]
