@@ -18,9 +18,10 @@ them. Two sets of options are named here:
   (:func:`schur_factor_options`): PETSc's own LU with a reverse Cuthill-McKee ordering up to
   :data:`SMALL_SYSTEM` free dofs, MUMPS LU up to :data:`LARGE_SYSTEM`, and above it one
   V-cycle of algebraic multigrid as in :data:`ITERATIVE` (S couples pressures four functions
-  apart, so its LU fills in fast; the multigrid cycle takes a dozen iterations to the same
-  tolerance in less time). Should the iteration fail, the system is solved again by MUMPS
-  LU (:data:`DIRECT`);
+  apart, so its LU fills in fast). With the cycle each iteration gains about a decade and costs
+  what S's LU solve would, so the iteration stops at :data:`MULTIGRID_RTOL` (1e-10, a hundredth of
+  Newton's tolerance), not at round-off (:func:`schur_rtol`; ``ksp_rtol`` among the options holds at
+  every size). Should the iteration fail, the system is solved again by MUMPS LU (:data:`DIRECT`);
 * :data:`DIRECT`: LU of the whole system by MUMPS (on several ranks sequential MUMPS on every
   rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: GMRES preconditioned on the right by a Schur-complement field split of the
@@ -30,8 +31,8 @@ them. Two sets of options are named here:
   threshold, as the B-spline stencil is wide, and an SOR sweep on each level), the velocity block
   by its diagonal: it is the lumped mass over ``beta dt^2`` plus a viscous part smaller by
   ``~ 2 mu dt / (rho h^2)``, for which Jacobi does as well as a multigrid cycle at a fraction of
-  the cost. The relative tolerance is tight enough that the solution agrees with the direct one to about 1e-8
-  (``tests/test_iterative.py``); GMRES restarts rarely, since splashes raise the iteration count. Very viscous flows may want
+  the cost. It stops at :data:`MULTIGRID_RTOL`, as the exact solve does with S's cycle
+  (``tests/test_iterative.py`` compares it with the direct solve); GMRES restarts rarely, since splashes raise the iteration count. Very viscous flows may want
   ``fieldsplit_u_pc_type = "gamg"``; an inner Krylov solve of a block makes the outer solver FGMRES
   (:func:`iterative_options`).
 
@@ -60,8 +61,8 @@ from petsc4py import PETSc
 from fempm.errors import InputError
 from fempm.schur import PATTERN_MARGIN, FreeBlocks
 
-__all__ = ["DIRECT", "EXACT", "ITERATIVE", "LARGE_SYSTEM", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
-           "direct_options", "iterative_options", "schur_factor_options", "set_options", "writing_option"]
+__all__ = ["DIRECT", "EXACT", "EXACT_RTOL", "ITERATIVE", "LARGE_SYSTEM", "MULTIGRID_RTOL", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
+           "direct_options", "iterative_options", "schur_factor_options", "schur_rtol", "set_options", "writing_option"]
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
 # MUMPS's parallel factorisation schedules its work dynamically, so on several ranks its
@@ -84,9 +85,16 @@ _PRESSURE_GAMG = {"pc_gamg_threshold": 0.02, "pc_gamg_aggressive_square_graph": 
 _PRESSURE_AMG = {f"fieldsplit_p_{k}": v
                  for k, v in {**_AMG, **(_PRESSURE_GAMG if _AMG["pc_type"] == "gamg" else {})}.items()}
 
-#: The Schur complement solved exactly (see the module's docstring); S's solver chosen by size.
+#: The Krylov iteration's relative tolerance where S is solved by LU: a few iterations reach round-off.
+EXACT_RTOL = 1e-13
+#: ... and where S (or the pressure block) is solved by a multigrid cycle, each iteration of which gains about a
+#: decade: a hundredth of Newton's own tolerance (``Controls.newton_rtol``), four iterations fewer than round-off.
+MULTIGRID_RTOL = 1e-10
+
+#: The Schur complement solved exactly (see the module's docstring); S's solver chosen by size, and with it
+#: the tolerance (:func:`schur_rtol`) unless the options name another.
 EXACT = {
-    "ksp_type": "fgmres", "ksp_rtol": 1e-13, "ksp_atol": 1e-50, "ksp_max_it": 100,
+    "ksp_type": "fgmres", "ksp_rtol": EXACT_RTOL, "ksp_atol": 1e-50, "ksp_max_it": 100,
     "pc_type": "fieldsplit", "pc_fieldsplit_type": "schur",
     "pc_fieldsplit_schur_fact_type": "full", "pc_fieldsplit_schur_precondition": "selfp",
     "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
@@ -124,6 +132,12 @@ def schur_factor_options(free_dofs: int) -> dict:
     return {"fieldsplit_p_pc_factor_mat_solver_type": "petsc", "fieldsplit_p_pc_factor_mat_ordering_type": "rcm"}
 
 
+def schur_rtol(free_dofs: int) -> float:
+    """The exact Schur solve's relative tolerance for a system of ``free_dofs``: round-off while S is solved
+    by LU, :data:`MULTIGRID_RTOL` where by a multigrid cycle (:func:`schur_factor_options`)."""
+    return MULTIGRID_RTOL if free_dofs > LARGE_SYSTEM else EXACT_RTOL
+
+
 def direct_options(comm, fields: dict[str, int] | None = None) -> dict:
     """The exact solver's options for ``comm``: :data:`EXACT` on one rank (if ``fields``, given, hold
     a velocity ``u`` and a pressure ``p``; else :data:`DIRECT`); on several, :data:`DIRECT` made
@@ -137,7 +151,7 @@ def direct_options(comm, fields: dict[str, int] | None = None) -> dict:
 #: cycle), so GMRES preconditioned on the right iterates as FGMRES would, keeping half its vectors
 #: (see :func:`iterative_options` for a user's own inner solves).
 ITERATIVE = {
-    "ksp_type": "gmres", "ksp_pc_side": "right", "ksp_rtol": 1e-13, "ksp_atol": 1e-50, "ksp_max_it": 1000,
+    "ksp_type": "gmres", "ksp_pc_side": "right", "ksp_rtol": MULTIGRID_RTOL, "ksp_atol": 1e-50, "ksp_max_it": 1000,
     "ksp_gmres_restart": 100,
     "pc_type": "fieldsplit", "pc_fieldsplit_type": "schur",
     "pc_fieldsplit_schur_fact_type": "full", "pc_fieldsplit_schur_precondition": "selfp",
@@ -205,6 +219,8 @@ class LinearSolver:
             # an exact Schur solve (S by LU) whose LU package is not named: chosen by size, MUMPS LU if it fails
             self.exact_schur = (fieldsplit and opts.getString(prefix + "fieldsplit_p_pc_type", "") == "lu"
                                 and not any(opts.hasName(prefix + name) for name in _SCHUR_FACTOR_NAMES))
+            # ... and its tolerance with it, unless the options name another than the default's
+            self._rtol_by_size = self.exact_schur and opts.getReal(prefix + "ksp_rtol", EXACT_RTOL) == EXACT_RTOL
             # a selfp Schur split of two fields: fempm forms the complement (_selfp, or fempm.schur's)
             self.selfp = (len(self.fields) == 2 and fieldsplit
                           and opts.getString(prefix + "pc_fieldsplit_type", "") == "schur"
@@ -356,6 +372,8 @@ class LinearSolver:
         """The KSP's solve, with the Schur complement's LU package chosen by ``size`` (exact Schur
         solve); its converged reason."""
         chosen = schur_factor_options(size) if self.exact_schur else {}
+        if self._rtol_by_size:
+            self.ksp.setTolerances(rtol=schur_rtol(size))
         with _options_in_force({**self._own_options, **{self.prefix + name: v for name, v in chosen.items()}}):
             self.ksp.solve(b, x)  # the split reads its blocks' options while it sets up
         return self.ksp.getConvergedReason()
