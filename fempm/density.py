@@ -68,6 +68,13 @@ class DeepWater:
         self.cell_functions = space.local_functions_of_cells(self.cells)
         self._shallow = GridFunction(space, "shallow_cells")
         self._ramps = GridFunction(Space(space.basis, {"still": 2, "moving": 2}), "by_parts_ramps")
+        # each local function's cells on all ranks: the pass below visits only the cells some water reaches
+        # and counts what is not shallow, not zero, so that a dry cell costs no writes
+        support = GridFunction(space, "support_cells")
+        _count_cells(self.cell_functions, support.values[:, 0])
+        support.scatter_reverse_add()
+        support.scatter_forward()
+        self._support = support.values[:, 0].copy()
 
     def _summed(self, phi: np.ndarray, by_parts: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """Per local function: its support's cells below :data:`DEEP`; with ``by_parts`` also, for each ramp
@@ -82,7 +89,12 @@ class DeepWater:
         for f in sums:
             f.scatter_reverse_add()
             f.scatter_forward()
-        return self._shallow.values[:, 0], self._ramps.values if by_parts else None
+        shallow = self._shallow.values[:, 0]
+        shallow[:] = self._support - shallow  # the pass counted the cells at or above DEEP
+        if by_parts:
+            for k in (1, 3):  # ... and the cells whose ramp is above zero
+                self._ramps.values[:, k] = self._support - self._ramps.values[:, k]
+        return shallow, self._ramps.values if by_parts else None
 
     def interior(self, phi: np.ndarray) -> np.ndarray:
         """Which local functions have only deep cells in their support, given ``phi`` on the local
@@ -107,28 +119,40 @@ class DeepWater:
 
 
 @numba.njit(cache=True)
-def _sum_cells(centre_values, cell_functions, phi, blocked, ramps, shallow, sums):
+def _count_cells(cell_functions, out):
+    """1 to ``out`` for every function of every cell: each function's cells."""
+    for c in range(cell_functions.shape[0]):
+        for l in range(cell_functions.shape[1]):
+            out[cell_functions[c, l]] += 1.0
+
+
+@numba.njit(cache=True)
+def _sum_cells(centre_values, cell_functions, phi, blocked, ramps, deep, sums):
     """For each cell, ``phi`` at its centre ``sum_l N_l(centre) phi_l``; to every function of the cell add
-    1 to ``shallow`` if it is below :data:`DEEP`, and unless ``sums`` is empty, for each ramp ``k`` of
-    ``ramps`` (rows ``(none, full)``), the logarithm of ``clip((phi - none) / (full - none), 0, 1)`` to
-    ``sums[:, 2k]`` if above zero and the cell not ``blocked``, else 1 to ``sums[:, 2k + 1]``."""
+    1 to ``deep`` if it is at or above :data:`DEEP`, and unless ``sums`` is empty, for each ramp ``k`` of
+    ``ramps`` (rows ``(none, full)``) whose ``clip((phi - none) / (full - none), 0, 1)`` is above zero and the
+    cell not ``blocked``, its logarithm to ``sums[:, 2k]`` and 1 to ``sums[:, 2k + 1]``. A cell that adds
+    nothing (dry, or nearly) is left after its centre."""
     by_parts = sums.shape[0] > 0
     logs = np.empty(ramps.shape[0])
     for c in range(cell_functions.shape[0]):
         centre = 0.0
         for l in range(cell_functions.shape[1]):
             centre += centre_values[c, l] * phi[cell_functions[c, l]]
+        wet = centre >= DEEP
         if by_parts:
             for k in range(ramps.shape[0]):
                 ramp = 0.0 if blocked[c] else min(1.0, (centre - ramps[k, 0]) / (ramps[k, 1] - ramps[k, 0]))
                 logs[k] = np.log(ramp) if ramp > 0.0 else np.nan  # nan: the ramp is zero
+                wet = wet or ramp > 0.0
+        if not wet:
+            continue
         for l in range(cell_functions.shape[1]):
             f = cell_functions[c, l]
-            if centre < DEEP:
-                shallow[f] += 1.0
+            if centre >= DEEP:
+                deep[f] += 1.0
             if by_parts:
                 for k in range(ramps.shape[0]):
-                    if np.isnan(logs[k]):
-                        sums[f, 2 * k + 1] += 1.0
-                    else:
+                    if not np.isnan(logs[k]):
                         sums[f, 2 * k] += logs[k]
+                        sums[f, 2 * k + 1] += 1.0
