@@ -18,10 +18,10 @@ them. Two sets of options are named here:
   (:func:`schur_factor_options`): PETSc's own LU with a reverse Cuthill-McKee ordering up to
   :data:`SMALL_SYSTEM` free dofs, MUMPS LU up to :data:`LARGE_SYSTEM`, and above it one
   V-cycle of algebraic multigrid as in :data:`ITERATIVE` (S couples pressures four functions
-  apart, so its LU fills in fast). With the cycle each iteration gains about a decade and costs
-  what S's LU solve would, so the iteration stops at :data:`MULTIGRID_RTOL` (1e-10, a hundredth of
-  Newton's tolerance), not at round-off (:func:`schur_rtol`; ``ksp_rtol`` among the options holds at
-  every size). Should the iteration fail, the system is solved again by MUMPS LU (:data:`DIRECT`);
+  apart, so its LU fills in fast). With the cycle each iteration gains about a decade, so the
+  iteration stops at :data:`MULTIGRID_RTOL` (1e-10, a hundredth of Newton's tolerance), not at
+  round-off (:func:`schur_rtol`; a ``ksp_rtol`` other than :data:`EXACT_RTOL` among the options holds
+  at every size). Should the iteration fail, the system is solved again by MUMPS LU (:data:`DIRECT`);
 * :data:`DIRECT`: LU of the whole system by MUMPS (on several ranks sequential MUMPS on every
   rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: GMRES preconditioned on the right by a Schur-complement field split of the
@@ -88,7 +88,7 @@ _PRESSURE_AMG = {f"fieldsplit_p_{k}": v
 #: The Krylov iteration's relative tolerance where S is solved by LU: a few iterations reach round-off.
 EXACT_RTOL = 1e-13
 #: ... and where S (or the pressure block) is solved by a multigrid cycle, each iteration of which gains about a
-#: decade: a hundredth of Newton's own tolerance (``Controls.newton_rtol``), four iterations fewer than round-off.
+#: decade: a hundredth of Newton's own tolerance (``Controls.newton_rtol``).
 MULTIGRID_RTOL = 1e-10
 
 #: The Schur complement solved exactly (see the module's docstring); S's solver chosen by size, and with it
