@@ -596,8 +596,10 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
 
     The options under ``prefix`` are tried by one solve of a small system with the
     given fields (every rank holds four functions), so options that PETSc reads only
-    while setting up a preconditioner are seen too. An option PETSc never read is a
-    misspelling or belongs to a solver not in use; its message suggests close names.
+    while setting up a preconditioner are seen too; where the exact Schur solve chooses S's
+    solver by size, once more with the multigrid cycle of large systems, so that options of
+    that cycle (``fieldsplit_p_pc_gamg_threshold``, ...) count as read. An option PETSc never
+    read is a misspelling or belongs to a solver not in use; its message suggests close names.
     On an error every option under ``prefix`` is removed from the options database.
     """
     names = list(names)
@@ -613,7 +615,9 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
                              f"the terminal (e.g. {name} = \"\" or \"ascii:stdout\")")
     PETSc.Sys.pushErrorHandler("python")  # PETSc prints nothing; the error comes back here
     try:
-        _trial_solve(comm, prefix, fields)
+        if _trial_solve(comm, prefix, fields):  # S's solver by size: its cycle above LARGE_SYSTEM reads options too
+            with _options_in_force({prefix + k: v for k, v in _PRESSURE_AMG.items() if not opts.hasName(prefix + k)}):
+                _trial_solve(comm, prefix, fields)
     except PETSc.Error as e:
         culprit = _rejected_option(comm, prefix, fields, names)
         value = opts.getString(prefix + culprit, "") if culprit else ""
@@ -632,8 +636,9 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
                          f"({solver}): a misspelling, or an option of another solver{hint}")
 
 
-def _trial_solve(comm, prefix: str, fields: dict[str, int] | None):
-    """One solve with the options under ``prefix`` of a small well-posed block system."""
+def _trial_solve(comm, prefix: str, fields: dict[str, int] | None) -> bool:
+    """One solve with the options under ``prefix`` of a small well-posed block system; whether its solver
+    chooses the Schur complement's solver by size (``LinearSolver.exact_schur``)."""
     bs = sum((fields or {"u": 1}).values())
     per_rank = 4
     n = per_rank * comm.size
@@ -660,6 +665,7 @@ def _trial_solve(comm, prefix: str, fields: dict[str, int] | None):
     finally:
         solver.ksp.destroy()
         A.destroy()
+    return solver.exact_schur
 
 
 def _rejected_option(comm, prefix, fields, names) -> str | None:

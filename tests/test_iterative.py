@@ -17,6 +17,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from fempm import linear
+from fempm.errors import InputError
 from fempm.scene import load_scene
 from fempm.simulation import build_solver
 
@@ -243,3 +244,19 @@ def test_a_solvers_options_are_its_own():
         assert default.ksp.getType() == "preonly"
     # measured 2.2e-13 on one rank, 6.5e-14 on two: GMRES to 1e-13 against the exact solve
     assert _norm(iterated.getArray() - exact.getArray(), comm) <= 1e-12 * _norm(exact.getArray(), comm)
+
+
+def test_options_of_the_large_systems_cycle_pass_the_check():
+    """The check's trial system is small, where S is solved by LU; an option of the multigrid cycle that S takes
+    above LARGE_SYSTEM is still one the solver reads (it was refused as unused), and a misspelt one still is not."""
+    scene = load_scene(SCENE)
+
+    def built(petsc):
+        return build_solver(replace(scene, solver=replace(scene.solver, petsc=petsc)), MPI.COMM_SELF)
+
+    solver = built({"fieldsplit_p_pc_gamg_threshold": 0.05})
+    assert solver.system.linear_solver.options["fieldsplit_p_pc_gamg_threshold"] == 0.05
+    with pytest.raises(InputError, match=r"fieldsplit_p_pc_gamg_thresold: PETSc did not use this option .* did you "
+                                         r"mean fieldsplit_p_pc_gamg_threshold"):
+        built({"fieldsplit_p_pc_gamg_thresold": 0.05})
+    assert not any(name.startswith("fempm_") for name in PETSc.Options().getAll())  # none left behind
