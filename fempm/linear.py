@@ -371,10 +371,13 @@ class LinearSolver:
     def _ksp_solve(self, b: PETSc.Vec, x: PETSc.Vec, size: int) -> int:
         """The KSP's solve, with the Schur complement's LU package chosen by ``size`` (exact Schur
         solve); its converged reason."""
-        chosen = schur_factor_options(size) if self.exact_schur else {}
+        own = self._own_options
+        # the size's choice over the default's options, not over a user's (a cycle's drop threshold, ...)
+        chosen = {self.prefix + name: v for name, v in (schur_factor_options(size) if self.exact_schur else {}).items()
+                  if own.get(self.prefix + name, EXACT.get(name)) == EXACT.get(name)}
         if self._rtol_by_size:
             self.ksp.setTolerances(rtol=schur_rtol(size))
-        with _options_in_force({**self._own_options, **{self.prefix + name: v for name, v in chosen.items()}}):
+        with _options_in_force({**own, **chosen}):
             self.ksp.solve(b, x)  # the split reads its blocks' options while it sets up
         return self.ksp.getConvergedReason()
 

@@ -260,3 +260,14 @@ def test_options_of_the_large_systems_cycle_pass_the_check():
                                          r"mean fieldsplit_p_pc_gamg_threshold"):
         built({"fieldsplit_p_pc_gamg_thresold": 0.05})
     assert not any(name.startswith("fempm_") for name in PETSc.Options().getAll())  # none left behind
+
+
+def test_a_users_option_of_the_cycle_holds_over_the_sizes_choice(monkeypatch):
+    """Above LARGE_SYSTEM the size's choice of S's solver sets the cycle's options over the default's, not over the
+    user's (a user's drop threshold was silently replaced by the default's 0.02)."""
+    monkeypatch.setattr(linear, "LARGE_SYSTEM", 0)
+    _, solver = _one_step(MPI.COMM_SELF, petsc={"fieldsplit_p_pc_gamg_threshold": 0.05,
+                                                "fieldsplit_p_mg_levels_ksp_max_it": 2})
+    schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
+    assert schur.getType() == "gamg" and schur.getMGLevels() > 1
+    assert schur.getMGSmoother(1).getTolerances()[3] == 2  # the default's one sweep otherwise
