@@ -271,3 +271,12 @@ def test_a_users_option_of_the_cycle_holds_over_the_sizes_choice(monkeypatch):
     schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
     assert schur.getType() == "gamg" and schur.getMGLevels() > 1
     assert schur.getMGSmoother(1).getTolerances()[3] == 2  # the default's one sweep otherwise
+
+
+def test_a_users_tolerance_holds_at_every_size(monkeypatch):
+    """A scene's ksp_rtol other than the default's is the iteration's whatever S's solver (the size's rule: round-off
+    with S's LU, linear.MULTIGRID_RTOL with its cycle)."""
+    monkeypatch.setattr(linear, "LARGE_SYSTEM", 0)
+    _, solver = _one_step(MPI.COMM_SELF, petsc={"ksp_rtol": 1e-12})
+    assert solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC().getType() == "gamg"
+    assert solver.ksp.getTolerances()[0] == 1e-12
