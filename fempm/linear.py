@@ -600,8 +600,9 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
     The options under ``prefix`` are tried by one solve of a small system with the
     given fields (every rank holds four functions), so options that PETSc reads only
     while setting up a preconditioner are seen too; where the exact Schur solve chooses S's
-    solver by size, once more with the multigrid cycle of large systems, so that options of
-    that cycle (``fieldsplit_p_pc_gamg_threshold``, ...) count as read. An option PETSc never
+    solver by size, once more with the multigrid cycle of large systems on a system it coarsens
+    (:data:`_CYCLE_TRIAL` functions a rank), so that options of that cycle
+    (``fieldsplit_p_pc_gamg_threshold``, ``fieldsplit_p_pc_gamg_agg_nsmooths``, ...) count as read. An option PETSc never
     read is a misspelling or belongs to a solver not in use; its message suggests close names.
     On an error every option under ``prefix`` is removed from the options database.
     """
@@ -618,9 +619,13 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
                              f"the terminal (e.g. {name} = \"\" or \"ascii:stdout\")")
     PETSc.Sys.pushErrorHandler("python")  # PETSc prints nothing; the error comes back here
     try:
-        if _trial_solve(comm, prefix, fields):  # S's solver by size: its cycle above LARGE_SYSTEM reads options too
-            with _options_in_force({prefix + k: v for k, v in _PRESSURE_AMG.items() if not opts.hasName(prefix + k)}):
-                _trial_solve(comm, prefix, fields)
+        # S's solver by size: its cycle above LARGE_SYSTEM reads options too, on a system it coarsens
+        if _trial_solve(comm, prefix, fields) and names:
+            given = opts.getAll()  # the cycle's options over the default's, not over the user's
+            cycle = {prefix + k: v for k, v in _PRESSURE_AMG.items()
+                     if given.get(prefix + k, str(EXACT.get(k))) == str(EXACT.get(k))}
+            with _options_in_force(cycle):
+                _trial_solve(comm, prefix, fields, _CYCLE_TRIAL)
     except PETSc.Error as e:
         culprit = _rejected_option(comm, prefix, fields, names)
         value = opts.getString(prefix + culprit, "") if culprit else ""
@@ -639,11 +644,15 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
                          f"({solver}): a misspelling, or an option of another solver{hint}")
 
 
-def _trial_solve(comm, prefix: str, fields: dict[str, int] | None) -> bool:
-    """One solve with the options under ``prefix`` of a small well-posed block system; whether its solver
-    chooses the Schur complement's solver by size (``LinearSolver.exact_schur``)."""
+#: Functions per rank of the trial system for S's multigrid cycle: enough for the cycle to coarsen (and read
+#: its options of coarsening) rather than solve a single level
+_CYCLE_TRIAL = 400
+
+
+def _trial_solve(comm, prefix: str, fields: dict[str, int] | None, per_rank: int = 4) -> bool:
+    """One solve with the options under ``prefix`` of a small well-posed block system (``per_rank`` functions on
+    each rank); whether its solver chooses the Schur complement's solver by size (``LinearSolver.exact_schur``)."""
     bs = sum((fields or {"u": 1}).values())
-    per_rank = 4
     n = per_rank * comm.size
     A = PETSc.Mat().createAIJ(((per_rank * bs, None), (per_rank * bs, None)), bsize=1, nnz=3 * bs, comm=comm)
     A.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, False)
