@@ -372,9 +372,7 @@ class LinearSolver:
         """The KSP's solve, with the Schur complement's LU package chosen by ``size`` (exact Schur
         solve); its converged reason."""
         own = self._own_options
-        # the size's choice over the default's options, not over a user's (a cycle's drop threshold, ...)
-        chosen = {self.prefix + name: v for name, v in (schur_factor_options(size) if self.exact_schur else {}).items()
-                  if own.get(self.prefix + name, EXACT.get(name)) == EXACT.get(name)}
+        chosen = _over_defaults(schur_factor_options(size) if self.exact_schur else {}, own, self.prefix)
         if self._rtol_by_size:
             self.ksp.setTolerances(rtol=schur_rtol(size))
         with _options_in_force({**own, **chosen}):
@@ -523,6 +521,13 @@ def _selfp(nest: PETSc.Mat) -> PETSc.Mat:
     return complement
 
 
+def _over_defaults(choice: dict, given: dict, prefix: str) -> dict:
+    """The options of ``choice`` (names without ``prefix``) that replace :data:`EXACT`'s defaults among ``given``
+    (full names), not a user's value (a cycle's drop threshold, ...): full names to values."""
+    return {prefix + name: value for name, value in choice.items()
+            if str(given.get(prefix + name, EXACT.get(name))) == str(EXACT.get(name))}
+
+
 @contextlib.contextmanager
 def _options_in_force(values: dict):
     """PETSc options (full names) set in the database for the duration of a call, then as they were."""
@@ -621,10 +626,7 @@ def check_options(comm, names, fields: dict[str, int] | None = None, prefix: str
     try:
         # S's solver by size: its cycle above LARGE_SYSTEM reads options too, on a system it coarsens
         if _trial_solve(comm, prefix, fields) and names:
-            given = opts.getAll()  # the cycle's options over the default's, not over the user's
-            cycle = {prefix + k: v for k, v in _PRESSURE_AMG.items()
-                     if given.get(prefix + k, str(EXACT.get(k))) == str(EXACT.get(k))}
-            with _options_in_force(cycle):
+            with _options_in_force(_over_defaults(_PRESSURE_AMG, opts.getAll(), prefix)):
                 _trial_solve(comm, prefix, fields, _CYCLE_TRIAL)
     except PETSc.Error as e:
         culprit = _rejected_option(comm, prefix, fields, names)
