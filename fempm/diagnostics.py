@@ -50,7 +50,8 @@ def mechanical_energy(particles, gravity, datum) -> float:
     With ``datum`` the :func:`lowest_corner`, E >= 0; gravity and walls at rest can only
     take it away (viscosity, the scheme's dissipation)."""
     v = particles["velocity"]
-    local = particles["mass"] @ (0.5 * np.einsum("ij,ij->i", v, v) - (particles.x - datum) @ np.asarray(gravity))
+    height = np.einsum("ij,j->i", particles.x - datum, np.asarray(gravity, dtype=float))
+    local = np.einsum("i,i->", particles["mass"], 0.5 * np.einsum("ij,ij->i", v, v) - height)
     return particles.grid.comm.allreduce(float(local))
 
 

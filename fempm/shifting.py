@@ -317,7 +317,7 @@ class ParticleShifting:
             return shifts
         mean, mean_velocity, turn = total[1:] / total[0], np.zeros(2), 0.0
         if self.keep_angular_momentum:
-            mean_velocity = grid.comm.allreduce(mass[movable] @ v[movable]) / total[0]
+            mean_velocity = grid.comm.allreduce(np.einsum("i,ij->j", mass[movable], v[movable])) / total[0]
             turning, spread = grid.comm.allreduce(_turning(v, movable, mass, mean, mean_velocity, shifts))
             turn = turning / spread if spread > 0 else 0.0
         _move(x, v, movable, mean, mean_velocity, turn, shifts)

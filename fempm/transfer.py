@@ -399,11 +399,11 @@ def angular_momentum(space: Space, particles, gradients: np.ndarray | None = Non
     """
     m, v = particles["mass"], particles["velocity"]
     r = particles.x - np.asarray(centre, dtype=float)
-    local = float(m @ (r[:, 0] * v[:, 1] - r[:, 1] * v[:, 0]))
+    local = float(np.einsum("i,i->", m, r[:, 0] * v[:, 1] - r[:, 1] * v[:, 0]))
     if gradients is not None:
         D, _ = affine_moments(space, particles)
         CD = np.asarray(gradients) @ D
-        local += float(m @ (CD[:, 1, 0] - CD[:, 0, 1]))
+        local += float(np.einsum("i,i->", m, CD[:, 1, 0] - CD[:, 0, 1]))
     return space.comm.allreduce(local)
 
 

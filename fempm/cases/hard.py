@@ -173,7 +173,7 @@ class Watch:
         self.x_low = diagnostics.lowest_corner(solver.grid, self.g)
         self.mass0 = self._sum(p["mass"])
         self.cells0 = diagnostics.occupied_cells(p)
-        drop = self._max((p.x - self.x_low) @ -self.g)  # |g| times the fall height of the highest particle
+        drop = self._max(np.einsum("ij,j->i", p.x - self.x_low, -self.g))  # |g| times the fall height of the highest particle
         self.speed_bound = sqrt(self._max(np.einsum("ij,ij->i", p["velocity"], p["velocity"])) + 2 * drop)
         self.history = {"t": [], "centroid": [], "max_speed": [], "energy": []}
         self.finite = True
@@ -191,7 +191,7 @@ class Watch:
         speed2 = np.einsum("ij,ij->i", p["velocity"], p["velocity"])
         energy = diagnostics.mechanical_energy(p, self.g, self.x_low)
         self.history["t"].append(solver.time)
-        self.history["centroid"].append(self.comm.allreduce(m @ p.x) / self.mass0)
+        self.history["centroid"].append(self.comm.allreduce(np.einsum("i,ij->j", m, p.x)) / self.mass0)
         self.history["max_speed"].append(sqrt(self._max(speed2)))
         self.history["energy"].append(energy)
         finite = all(bool(np.all(np.isfinite(p[name]))) for name in FIELDS)

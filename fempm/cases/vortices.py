@@ -91,7 +91,7 @@ def box_solver(variant: str, cells: int, dt: float, nu: float, velocity, acceler
 def kinetic_energy(particles) -> float:
     """``sum_p m_p |v_p|^2 / 2`` on all ranks."""
     v = particles["velocity"]
-    return particles.grid.comm.allreduce(float(particles["mass"] @ (0.5 * np.einsum("ij,ij->i", v, v))))
+    return particles.grid.comm.allreduce(float(np.einsum("i,ij,ij->", particles["mass"], v, v)) / 2)
 
 
 # -- Taylor-Green -----------------------------------------------------------------------------------
@@ -229,8 +229,8 @@ def gresho_measures(solver) -> dict:
     u_theta = (r[:, 0] * p["velocity"][:, 1] - r[:, 1] * p["velocity"][:, 0]) / radius
     exact = gresho_speed(radius)
     comm = p.grid.comm
-    error = np.sqrt(comm.allreduce(float(p["mass"] @ (u_theta - exact) ** 2))
-                    / comm.allreduce(float(p["mass"] @ exact**2)))
+    error = np.sqrt(comm.allreduce(float(np.einsum("i,i->", p["mass"], (u_theta - exact) ** 2)))
+                    / comm.allreduce(float(np.einsum("i,i->", p["mass"], exact**2))))
     return {"ke": kinetic_energy(p), "L": L, "profile": float(error)}
 
 
