@@ -1,4 +1,5 @@
-"""The hydrostatic pressure the momentum balance's split takes by parts (``solver.pressure_work = "split"``).
+"""The pressure known at the solve whose work the momentum balance's split takes by parts: the hydrostatic one
+(``solver.pressure_work = "split"``) or the last step's (``"increment"``, :class:`LastPressure`).
 
 In divergence form, ``-p div w`` at the particles, water at rest balances gravity only as well as the particle
 quadrature integrates ``div(p w)``; that error times the hydrostatic pressure is a force that grows with the
@@ -26,14 +27,18 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
-from fempm.space import Space
+from fempm import transfer
+from fempm.space import GridFunction, Space
 
-__all__ = ["BELOW", "DRY", "FULL", "HydrostaticPressure"]
+__all__ = ["BELOW", "DRY", "FULL", "HydrostaticPressure", "LAST_PRESSURE_COURANT", "LastPressure"]
 
 #: cells below every free surface within which ``H`` is zero (measured: docs/notes-accuracy.md, the split)
 BELOW = 2.0
 #: the wet fractions at and below which a function is dry, and from which it is wholly wet (see the module)
 DRY, FULL = 0.3, 0.9
+#: the step's Courant number ``max |v| dt / h`` up to which :class:`LastPressure` takes the last step's pressure
+#: whole, and from which not at all (measured: docs/notes-accuracy.md, the increment)
+LAST_PRESSURE_COURANT = (1.0, 2.0)
 
 
 @numba.njit(cache=True)
@@ -125,3 +130,27 @@ class HydrostaticPressure:
         _hydrostatic(self._fraction, self.widths, self.heights, self.h, BELOW * self.h, self.scale, self.open_sides,
                      self._out)
         return self._out.reshape(-1)[self.functions]
+
+
+class LastPressure:
+    """The last step's pressure on a scalar space's local functions, ``p_i = sum_p m_p N_i(x_p) p_p / m_i`` (P2G of
+    the particles' pressure, which checkpoints and a retried step's saved state carry; 0 where no particle reaches),
+    times a share that falls from 1 to 0 as the step's Courant number crosses :data:`LAST_PRESSURE_COURANT`: with
+    it as ``H`` only the step's change of pressure works in divergence form (``solver.pressure_work = "increment"``;
+    ``forms/incompressible.py``, ``pressure_work``) while the water moves less than a cell in a step, and the whole
+    pressure at larger steps, where the last step's pressure is no estimate of this one's (at ten times the seed's
+    step the dam break's energy grew at the wall impact).
+    """
+
+    def __init__(self, space: Space):
+        self.space = space
+        self._weighted = GridFunction(space, "mass_pressure")
+
+    def __call__(self, particles, mass: np.ndarray, courant: float) -> np.ndarray:
+        """``H`` given the particles, the P2G masses ``m_i`` of the local functions and the step's Courant number
+        (collective)."""
+        low, high = LAST_PRESSURE_COURANT
+        share = min(max((high - courant) / (high - low), 0.0), 1.0)
+        weighted = transfer.particles_to_grid(self.space, particles, particles["mass"] * particles["pressure"],
+                                              out=self._weighted).values[:, 0]
+        return share * np.divide(weighted, mass, out=np.zeros_like(weighted), where=mass > 0)

@@ -23,7 +23,7 @@ from fempm import diagnostics, transfer
 from fempm.bases import Basis
 from fempm.density import DeepWater
 from fempm.errors import InputError
-from fempm.hydrostatic import HydrostaticPressure
+from fempm.hydrostatic import HydrostaticPressure, LastPressure
 from fempm.options import SIDES, Controls, Physics, Scheme
 from fempm.pressure_points import GaussPoints
 from fempm.particles import Particles
@@ -142,14 +142,16 @@ class ImplicitSolver(Stepper):
         walls = physics.wall_conditions()
         open_sides = [side for side in SIDES if walls[side] in ("outflow", "open")]
         self._deep_water = DeepWater(s.scalar_space, open_sides)
+        # the pressure the split takes by parts (fempm.hydrostatic): the hydrostatic one or the last step's
         self._hydrostatic = (HydrostaticPressure(s.scalar_space, physics.gravity, self._reference_density, open_sides)
-                             if s.constants["split"] else None)
+                             if scheme.pressure_work == "split" else None)
+        self._last_pressure = LastPressure(s.scalar_space) if scheme.pressure_work == "increment" else None
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
         # with the split the shifting fades at rest (fempm.shifting)
         rest_speed = (REST_SPEED * np.sqrt(np.linalg.norm(physics.gravity) * self.grid.h)
-                      if scheme.pressure_work == "split" else 0.0)
+                      if s.constants["split"] else 0.0)
         self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES],
                                            scheme.shifting_keeps_angular_momentum, rest_speed)
                           if scheme.shifting > 0 else None)
@@ -260,8 +262,11 @@ class ImplicitSolver(Stepper):
             speed = (np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) / np.sqrt(g * self.grid.h)
                      if g > 0 else None)
             s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0] = self._deep_water.masks(phi, speed)
-            if self._hydrostatic is not None:  # the split's hydrostatic pressure (fempm.hydrostatic)
-                s.fields["hydrostatic"].values[:, 0] = self._hydrostatic(phi)
+            known = s.fields["known_pressure"].values[:, 0]  # what the split takes by parts (fempm.hydrostatic)
+            if self._hydrostatic is not None:
+                known[:] = self._hydrostatic(phi)
+            elif self._last_pressure is not None:
+                known[:] = self._last_pressure(p, p2g.field("m")[:, 0], self.fastest() * s.dt / self.grid.h)
         elif s.constants["alpha"] > 0 and self.scheme.surface_aware:  # the volume correction's deep water
             s.fields["deep"].values[:, 0] = self._deep_water(phi)
         s.walls.start_step(keep.ravel(), s.fields["grid_velocity"])  # one-sided walls: this step's held dofs

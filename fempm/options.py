@@ -26,7 +26,7 @@ TRANSFERS = ("flip", "apic", "tpic", "affine-flip")
 #: where the pressure's terms are integrated (fempm.pressure_points)
 PRESSURE_QUADRATURES = ("particles", "gauss")
 #: how the momentum balance takes the pressure's work (:attr:`Scheme.pressure_work`)
-PRESSURE_WORKS = ("divergence", "by-parts", "split")
+PRESSURE_WORKS = ("divergence", "by-parts", "split", "increment")
 #: how the implicit step gets Newmark's a_0 (:attr:`Scheme.initial_acceleration`)
 INITIAL_ACCELERATIONS = ("solved", "given")
 #: ``Controls.matrix_region = "auto"`` keeps rows only near the water above this many cells.
@@ -157,7 +157,9 @@ class Scheme:
             the forms' constant ``by_parts``; ``forms/incompressible.py``, ``pressure_work``): water at rest
             then balances gravity at every particle, wherever the particles stand; or ``split`` (the divergence
             form, and the hydrostatic pressure's work taken by parts, the forms' constant ``split``;
-            :mod:`fempm.hydrostatic`): still water stirs far less, the Jacobian is the divergence form's.
+            :mod:`fempm.hydrostatic`): still water stirs far less, the Jacobian is the divergence form's; or
+            ``increment`` (the split with the last step's pressure in place of the hydrostatic one: only the
+            step's change of pressure works in divergence form).
     """
 
     dt: float = 1.0e-3

@@ -123,7 +123,7 @@ class GridSystem:
             "smoothed_density": GridFunction(self.scalar_space, "smoothed_density"),
             "deep": GridFunction(self.scalar_space, "deep"),  # fempm.density.DeepWater
             "by_parts": GridFunction(self.scalar_space, "by_parts"),  # fempm.density.DeepWater; 0 on a fixed grid
-            "hydrostatic": GridFunction(self.scalar_space, "hydrostatic"),  # fempm.hydrostatic; 0 on a fixed grid
+            "known_pressure": GridFunction(self.scalar_space, "known_pressure"),  # fempm.hydrostatic; 0 on a fixed grid
         }
         self.velocity = GridFunction(self.vector_space, "velocity")
         self.pressure = GridFunction(self.scalar_space, "pressure")
@@ -131,7 +131,7 @@ class GridSystem:
             "dt": scheme.dt, "beta": scheme.beta, "gamma": scheme.gamma, "mu": physics.viscosity,
             "gravity": np.asarray(physics.gravity, dtype=float), "alpha": scheme.volume_share(scheme.dt), "pspg": float(scheme.pspg),
             "surface_aware": float(scheme.surface_aware), "by_parts": float(scheme.pressure_work == "by-parts"),
-            "split": float(scheme.pressure_work == "split"),
+            "split": float(scheme.pressure_work in ("split", "increment")),
             "convection": float(convection), "density": float(density),
         }
         self.walls = Walls(self.space, physics)

@@ -19,7 +19,8 @@ What a form may use (see ``fempm.quadrature.Symbols``):
   ``v_i = sum_p m_p v_p N_i / sum_p m_p N_i``), ``smoothed_density`` (rho~ of eq. 2),
   ``deep`` (1 where a function's support lies deep in the water, else 0; see :func:`continuity`),
   ``by_parts`` (the share of the pressure's work taken by parts, 0 to 1; see :func:`pressure_work`),
-  ``hydrostatic`` (the hydrostatic pressure whose work the split takes by parts, ``fempm.hydrostatic``);
+  ``known_pressure`` (the pressure known at the solve whose work the split takes by parts: the hydrostatic
+  one, or with ``solver.pressure_work = "increment"`` the last step's; ``fempm.hydrostatic``);
 * constants: ``dt``, ``beta``, ``gamma`` (Newmark), ``mu`` (viscosity), ``density`` (the
   fluid's reference density), ``gravity``
   (a 2-vector), ``alpha`` (volume correction, 0 <= alpha <= 1), ``surface_aware`` (1 or 0,
@@ -211,14 +212,17 @@ def momentum(s):
 def pressure_work(s, p, w):
     """The pressure's work in the momentum balance, ``-p J* div_x w`` (eq. 1's ``-B^T p``; see
     :func:`end_divergence`); with ``split`` = 1 (``solver.pressure_work = "split"``) the hydrostatic part's work
-    taken by parts, an exact zero added (the grid function ``hydrostatic``, ``H``; ``fempm.hydrostatic``)::
+    taken by parts, an exact zero added (the grid function ``known_pressure``, ``H``; ``fempm.hydrostatic``)::
 
         -p J* div_x w + by_parts_excess(H)  =  -(p - D H) J* div_x w + w . cof F* grad(D H)
 
     whose integral is ``D H w . n`` on the water's edge, zero where ``D H`` vanishes at the free surfaces (``H``
     does within two cells of them). At the particles the hydrostatic pressure then balances gravity through its
     gradient, not through the quadrature's error in ``div(H w)`` times its level, and the Jacobian is the
-    divergence form's (``H`` is known at the solve). With ``by_parts`` = 1 (``solver.pressure_work = "by-parts"``)
+    divergence form's (``H`` is known at the solve). With ``solver.pressure_work = "increment"`` (``split`` = 1 too)
+    ``H`` is the last step's pressure: only the step's change ``p - D H`` works in divergence form, so the
+    quadrature's error meets the change, not the level, of any pressure (hydrostatic, a vortex's, an impact's).
+    With ``by_parts`` = 1 (``solver.pressure_work = "by-parts"``)
     the whole pressure's work is taken by parts with the weight ``D`` (the grid function ``by_parts``,
     ``fempm.density``)::
 
@@ -237,7 +241,7 @@ def pressure_work(s, p, w):
     """
     work = -p * end_divergence(s, w)
     if switched_on(s.constant("split")):
-        return work + by_parts_excess(s, s.grid("hydrostatic"), w)
+        return work + by_parts_excess(s, s.grid("known_pressure"), w)
     return work + by_parts_excess(s, p, w) if switched_on(s.constant("by_parts")) else work
 
 
@@ -258,7 +262,7 @@ def wall_force_excess(s):
     (``D H w . n``) on the walls."""
     _, p = ufl.split(s.grid("U"))
     w, _ = s.test
-    taken = s.grid("hydrostatic") if switched_on(s.constant("split")) else p
+    taken = s.grid("known_pressure") if switched_on(s.constant("split")) else p
     return by_parts_excess(s, taken, w) * s.dx
 
 

@@ -104,6 +104,20 @@ def test_resume_is_bit_identical_to_the_uninterrupted_run(shared_tmp, courant):
         assert (part / "gauges.png").is_file()
 
 
+def test_resume_with_the_last_steps_pressure_by_parts_is_bit_identical(tmp_path):
+    """``solver.pressure_work = "increment"`` takes the last step's pressure from the particles' (fempm.hydrostatic,
+    ``LastPressure``), which the checkpoint carries: the resumed run is the whole one, to the bit."""
+    def scene(folder, end):
+        s = _scene(folder, end=end)
+        return replace(s, solver=replace(s.solver, pressure_work="increment"))
+
+    whole, part = tmp_path / "whole", tmp_path / "part"
+    assert run_scene(scene(whole, END), MPI.COMM_WORLD)["status"] == "completed"
+    assert run_scene(scene(part, 0.03), MPI.COMM_WORLD)["status"] == "completed"
+    assert resume(part, MPI.COMM_WORLD, end_time=END, progress=False)["status"] == "completed"
+    _assert_same_run(whole, part)
+
+
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the multigrid cycle is kept on one rank only")
 def test_resume_keeping_the_pressure_multigrid_is_bit_identical(tmp_path):
     """104² cells (4,300 free dofs and more): the Schur complement by a multigrid cycle, set up with each new
