@@ -8,6 +8,7 @@ each one's measures as a row and writes ``docs/hard-cases.md`` from ``templates/
     python benchmarks/hard_cases.py --pressure-quadrature gauss    # docs/hard-cases-gauss.md
     python benchmarks/hard_cases.py --pressure-work by-parts       # docs/hard-cases-by-parts.md
     python benchmarks/hard_cases.py --pressure-work divergence     # docs/hard-cases-divergence.md
+    python benchmarks/hard_cases.py --pressure-work increment      # docs/hard-cases-increment.md
 
 Default: the short versions the tests run in CI; ``--full``: the long ones too (hours: the
 40 s dam break at the seed's step among them).
@@ -36,6 +37,10 @@ OPTIONS = {
     "divergence": (" --pressure-work divergence", "hard-cases-divergence.md", " This page: the same cases with the "
                    "pressure's work in divergence form throughout (`solver.pressure_work = \"divergence\"`, method.md's "
                    "`-p div w`; the shipped dam break's until it took the split), which the tests do not assert on."),
+    "increment": (" --pressure-work increment", "hard-cases-increment.md", " This page: the same cases with the last "
+                  "step's pressure by parts and the step's change in divergence form (`solver.pressure_work = "
+                  "\"increment\"`), on which the tests assert only that the dam break at ten times the seed's step "
+                  "completes (`tests/test_pressure_increment.py`)."),
 }
 
 
@@ -54,7 +59,7 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--full", action="store_true", help="the long versions too")
     parser.add_argument("--doc", type=Path, default=None, help="markdown output (default docs/hard-cases.md, "
-                        "with an option docs/hard-cases-gauss.md, docs/hard-cases-by-parts.md or docs/hard-cases-divergence.md)")
+                        "with an option docs/hard-cases-<option>.md)")
     parser.add_argument("--pressure-quadrature", choices=PRESSURE_QUADRATURES, default="particles",
                         help="where the pressure's terms are integrated (solver.pressure_quadrature)")
     parser.add_argument("--pressure-work", choices=PRESSURE_WORKS, default=None,

@@ -14,6 +14,9 @@ stress and PSPG (the forms: ``benchmarks/forms/gauss_pressure.py``). The weighti
 * ``particles, work by parts (shipped: pressure_work)``: no Gauss points; every term at the particles, the
   momentum's pressure work ``w . grad p`` where the water is deep (``Scheme.pressure_work = "by-parts"``,
   ``forms/incompressible.py``, ``pressure_work``);
+* ``particles, the last step's pressure by parts (shipped: pressure_work)``: the same, the last step's pressure
+  taken by parts and the step's change in divergence form (``Scheme.pressure_work = "increment"``,
+  ``fempm.hydrostatic``, ``LastPressure``);
 * ``smooth``: the smoothed fraction of water ``rho~ / rho`` (eq. 2) at the point, clipped to 1,
   with PSPG's residual that of the weighted terms, ``grad(wet p) / wet``;
 * ``smooth, PSPG uncorrected``: the same with PSPG's residual as shipped;
@@ -110,10 +113,13 @@ class Blend:
 SHIPPED = "shipped"
 #: the shipped option ``Scheme.pressure_work = "by-parts"`` (every term at the particles, ``forms/incompressible.py``)
 BY_PARTS = "by-parts"
+#: the shipped option ``Scheme.pressure_work = "increment"`` (the last step's pressure by parts, fempm.hydrostatic)
+INCREMENT = "increment"
 WEIGHTINGS = {
     "particles": None,  # the shipped forms and quadrature
     "gauss (shipped: pressure_quadrature)": SHIPPED,
     "particles, work by parts (shipped: pressure_work)": BY_PARTS,
+    "particles, the last step's pressure by parts (shipped: pressure_work)": INCREMENT,
     "smooth": Weighting("smooth", corrected=True),
     "smooth, PSPG uncorrected": Weighting("smooth"),
     "sharp": Weighting("smooth", sharpness=2.0, corrected=True),
@@ -261,10 +267,10 @@ def scene_solver(weighting: str, scene) -> ImplicitSolver:
 
 def _maker(w):
     """The solver type of a weighting (``None``: the particles, in divergence form, whatever the scene's treatment;
-    :data:`SHIPPED`: ``pressure_quadrature = "gauss"``; :data:`BY_PARTS`: ``pressure_work = "by-parts"``)."""
-    if w in (None, SHIPPED, BY_PARTS):  # the study's rows compare with the divergence form at the particles
+    :data:`SHIPPED`: ``pressure_quadrature = "gauss"``; :data:`BY_PARTS`, :data:`INCREMENT`: that ``pressure_work``)."""
+    if w in (None, SHIPPED, BY_PARTS, INCREMENT):  # the study's rows compare with the divergence form at the particles
         option = {None: {"pressure_work": "divergence"}, SHIPPED: {"pressure_quadrature": "gauss", "pressure_work": "divergence"},
-                  BY_PARTS: {"pressure_work": "by-parts"}}[w]
+                  BY_PARTS: {"pressure_work": "by-parts"}, INCREMENT: {"pressure_work": "increment"}}[w]
 
         def shipped(basis, particles, physics=None, scheme=None, controls=None):
             return ImplicitSolver(basis, particles, physics, dataclasses.replace(scheme or Scheme(), **option), controls)

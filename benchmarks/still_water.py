@@ -2,9 +2,9 @@
 
 Both studies run the shipped scene's step and solver (``scenes/dambreak.toml``: Courant 0.8, dt at
 most 10 ms, affine-FLIP, particle shifting, the surface-aware volume correction, the hydrostatic pressure's
-work split off, ``solver.pressure_work = "split"``) and four of its options: the divergence form
+work split off, ``solver.pressure_work = "split"``) and five of its options: the divergence form
 (``solver.pressure_work = "divergence"``, method.md's), with it ``solver.transfer = "flip"`` and
-``solver.pressure_quadrature = "gauss"``, and ``solver.pressure_work = "by-parts"``:
+``solver.pressure_quadrature = "gauss"``, ``solver.pressure_work = "by-parts"`` and ``"increment"``:
 
 * ``rest``: the dam break's column (L = 146 mm wide, 2L deep, 2 x 2 particles per cell) in a tank as
   wide as it (10 x 40 cells), its particles moved at random before the first step by at most a share
@@ -43,7 +43,8 @@ from fempm.simulation import build_solver
 DIVERGENCE = {"solver.pressure_work": "divergence"}  #: method.md's -p div w, the shipped scene's until the split
 VARIANTS = {"shipped": {}, "divergence form": DIVERGENCE, "FLIP": {"solver.transfer": "flip", **DIVERGENCE},
             "Gauss option": {"solver.pressure_quadrature": "gauss", **DIVERGENCE},
-            "work by parts": {"solver.pressure_work": "by-parts"}}
+            "work by parts": {"solver.pressure_work": "by-parts"},
+            "the last step's pressure by parts": {"solver.pressure_work": "increment"}}
 #: shares of the particle spacing the column's particles are moved by (0: the lattice)
 DISORDER = (0.0, 1e-5, 1e-4, 1e-3, 0.3)
 REST_TIMES = (1.0, 2.0, 4.0)  #: s, when the rest study reads the fastest particle

@@ -16,6 +16,8 @@ The cases, the first four run with both transfers (``fempm.cases.vortices.VARIAN
   surface-aware volume correction: :func:`scene_vortex`), by grid, step and particles per cell;
 * both vortices so handled with the default PIC shares (a whole share, then one on the particles' noise:
   ``noise_filter``, ``Scheme.noise_rate``, :class:`fempm.transfer.NoiseFilter`) beside each share alone;
+* both vortices so handled with the last step's pressure by parts (``increment_vortices``,
+  ``Scheme.pressure_work = "increment"``), with and without turning shifts, by grid and step;
 * both vortices without particles, the FEM-only reference (``fempm.cases.vortices.fem_reference``).
 
 The results go to ``docs/verification/transfers.json`` and, through the template
@@ -95,22 +97,25 @@ SHARE_NAMES = {"default": "default: whole 30/s + noise 300/s", "whole": "whole a
 
 
 def scene_vortex(kind: str, cells: int, courant: float, per_cell: int, end: float, share: str = "default",
-                 turning: bool = False) -> dict:
+                 turning: bool = False, work: str | None = None) -> dict:
     """A vortex (``taylor_green`` at nu = 1e-6, or ``gresho``) handled as the shipped dam-break scene
     handles its particles (``scenes/dambreak.toml``): affine-FLIP, particle shifting of strength
     :data:`fempm.cases.vortices.SHIFTING`, and for Gresho the surface-aware volume correction (in a
     closed box: of both signs everywhere); Taylor-Green runs without a correction, as in its own study.
     ``courant``: U dt / h (Gresho: max u_theta dt / h); ``share``: the PIC shares, a name of :data:`SHARES`;
-    ``turning``: shifts that add no angular momentum (``Scheme.shifting_keeps_angular_momentum``)."""
+    ``turning``: shifts that add no angular momentum (``Scheme.shifting_keeps_angular_momentum``); ``work``: a
+    ``Scheme.pressure_work`` (None: the Scheme's, which without gravity is the split's)."""
     dt = courant / cells
-    pic = {**SHARES[share], **({"shifting_keeps_angular_momentum": True} if turning else {})}
+    pic = {**SHARES[share], **({"shifting_keeps_angular_momentum": True} if turning else {}),
+           **({"pressure_work": work} if work else {})}
     if kind == "taylor_green":
         run = vortices.taylor_green("affine-FLIP", cells, dt, 1e-6, end=end, per_cell=per_cell,
                                     shifting=vortices.SHIFTING, pic=pic)
     else:
         run = vortices.gresho("affine-FLIP", cells, dt, end=end, per_cell=per_cell, shifting=vortices.SHIFTING,
                               surface_aware=True, pic=pic)
-    return {**run, "kind": kind, "courant": courant, "per_cell": per_cell, "share": share, "turning": turning}
+    return {**run, "kind": kind, "courant": courant, "per_cell": per_cell, "share": share, "turning": turning,
+            "work": work}
 
 
 def studies(full: bool) -> dict:
@@ -136,6 +141,12 @@ def studies(full: bool) -> dict:
                                                 ("default", True))]
         + [("taylor_green", n, c, 2, 0.25, share) for n, c in ((64, 0.4), (64, 0.1), (128, 0.4))
            for share in ("default", "whole")],
+        "increment_vortices": [("taylor_green", n, c, 2, 0.25, "default", turning, "increment")
+                               for n, c, turning in ((32, 0.4, True), (64, 0.4, True), (128, 0.4, True), (64, 0.2, True),
+                                                     (64, 0.1, True), (64, 0.4, False), (128, 0.4, False))]
+        + [("gresho", n, c, 2, 3.0 if full else 0.5, "default", turning, "increment")
+           for n, c, turning in ((32, 0.4, True), (64, 0.4, True), (64, 0.2, True), (64, 0.4, False))
+           + (((128, 0.4, True),) if full else ())],
         "fem_vortices": [("taylor_green", n, c / n, 0.25, 1e-6)
                          for n, c in ((64, 0.4),) + (((128, 0.4),) if full else ()) + ((64, 0.2), (64, 0.1))]
         + [("gresho", n, c / n, 3.0 if full else 0.5) for n, c in ((32, 0.4), (64, 0.4), (64, 0.2))],
@@ -144,7 +155,8 @@ def studies(full: bool) -> dict:
 
 RUNS = {"dambreak": dambreak_front, "dambreak_steps": dambreak_step_halvings, "taylor_green": vortices.taylor_green,
         "gresho": vortices.gresho, "column": column.rest, "loss_sources": vortices.taylor_green, "loss_growth": vortices.taylor_green,
-        "scene_vortices": scene_vortex, "noise_filter": scene_vortex, "fem_vortices": vortices.fem_reference}
+        "scene_vortices": scene_vortex, "noise_filter": scene_vortex, "increment_vortices": scene_vortex,
+        "fem_vortices": vortices.fem_reference}
 
 
 def _outcome(r: dict) -> str:
@@ -227,6 +239,17 @@ def section(data: dict) -> str:
              f"{100 * r['L']:+.3f} % ({_largest(r)})" if r["kind"] == "gresho" else "—",
              pct(r["profile"]) if r["kind"] == "gresho" else "—", f"{r['wall']:.0f}", _outcome(r)]
             for r in rows.get("noise_filter", [])]),
+        "increment_vortices": pages.table(["vortex", "cells", "U dt / h", "t", "shifts",
+                                           "KE change or loss per unit time",
+                                           "angular momentum change (largest over the run)", "u_θ L2 error",
+                                           "largest ρ̃/ρ", "wall (s)", "outcome"], [
+            [r["kind"].replace("_", "–").title(), r["cells"], f"{r['courant']:g}", f"{r['t']:g}",
+             "keeping L" if r["turning"] else "default",
+             f"{100 * r['ke']:+.2f} %" if r["kind"] == "gresho" else f"{r['numerical']:.2e}",
+             f"{100 * r['L']:+.3f} % ({_largest(r)})" if r["kind"] == "gresho" else "—",
+             pct(r["profile"]) if r["kind"] == "gresho" else "—",
+             f"{r['crowding']:.2f}" if r["kind"] == "gresho" else "—", f"{r['wall']:.0f}", _outcome(r)]
+            for r in rows.get("increment_vortices", [])]),
         "fem_taylor_green": pages.table(["cells", "U dt / h", "t", "numerical dissipation (1/unit time)", "wall (s)",
                                          "outcome"], [
             [r["cells"], f"{r['dt'] * r['cells']:g}", f"{r['t']:g}", f"{r['numerical']:.2e}", f"{r['wall']:.0f}",
