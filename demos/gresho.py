@@ -60,6 +60,24 @@ if MPI.COMM_WORLD.rank == 0:
               f"u_theta error {100 * r['profile']:.2f} %  ({r['wall']:.1f} s) {r['cause']}")
 
 # %% [markdown]
+# ## The settings for a vortex study
+#
+# For vortices the README's table of pressure treatments takes the shipped scene's particle handling
+# (shifting, the surface-aware volume correction) with the last step's pressure taken by parts and
+# shifts that add no angular momentum (`solver.pressure_work = "increment"`,
+# `solver.shifting_keeps_angular_momentum = true`). At 64² and t = 3 that keeps issue 11's 1 % and
+# 0.1 % (`docs/verification.md`); here, the demo's grid and time.
+
+# %%
+study = vortices.gresho("affine-FLIP", args.cells, args.dt, END, basis=args.basis, shifting=vortices.SHIFTING,
+                        surface_aware=True, pic={"pressure_work": "increment", **vortices.TURNING})
+study["variant"] = "vortex settings"
+rows.append(study)
+if MPI.COMM_WORLD.rank == 0:
+    print(f"{'vortex study':12s} t = {study['t']:g}: KE {100 * study['ke']:+.2f} %, angular momentum "
+          f"{100 * study['L']:+.2f} %, u_theta error {100 * study['profile']:.2f} %  ({study['wall']:.1f} s)")
+
+# %% [markdown]
 # ## The FEM-only reference
 #
 # The same forms on the fixed grid, Gauss quadrature and Oseen convection (`fempm.eulerian`), from
@@ -78,7 +96,8 @@ if MPI.COMM_WORLD.rank == 0:
 # ## The check
 #
 # The affine transfer must keep the kinetic energy better than FLIP/PIC, and both measures
-# within the bounds below at the default 32², t = 0.5; the FEM-only reference must lose less
+# within the bounds below at the default 32², t = 0.5, the vortex settings better still; the FEM-only
+# reference must lose less
 # than a tenth of the affine transfer's energy. The angular momentum is not conserved
 # to round-off, but its error is of second order in the step: the incompressibility holds on the
 # predicted end-of-step configuration (`forms/incompressible.py`, `end_divergence`); on the
@@ -87,13 +106,15 @@ if MPI.COMM_WORLD.rank == 0:
 
 # %%
 new, old = (next(r for r in rows if r["variant"] == v) for v in ("affine-FLIP", "FLIP/PIC"))
-BOUNDS = {"ke": 0.036, "L": 0.002}  # measured -3.4 % and -0.10 % (32², dt 0.0125, t = 0.5)
+BOUNDS = {"ke": 0.036, "L": 0.002}  # measured -2.20 % and -0.19 % (32², dt 0.0125, t = 0.5)
 failed = [r["variant"] for r in rows if r["status"] != "completed"]
 if not abs(reference["ke"]) < 0.1 * abs(new["ke"]):
     failed.append(f"FEM-only KE change {reference['ke']:+.3%} not a tenth of the MPM's")
 failed += [f"{k} {new[k]:+.3%}" for k, bound in BOUNDS.items() if not abs(new[k]) < bound]
 if abs(new["ke"]) >= abs(old["ke"]):
     failed.append(f"KE change {new['ke']:+.3%} not below FLIP/PIC's {old['ke']:+.3%}")
+if abs(study["ke"]) >= abs(new["ke"]):  # measured -1.95 % against -2.20 % (32², dt 0.0125, t = 0.5)
+    failed.append(f"the vortex settings' KE change {study['ke']:+.3%} not below the default's {new['ke']:+.3%}")
 if failed:
     if MPI.COMM_WORLD.rank == 0:
         print(f"gresho: {'; '.join(failed)}", file=sys.stderr)

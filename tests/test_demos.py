@@ -187,7 +187,7 @@ def test_taylor_green_demo(tmp_path):
 def test_gresho_demo(tmp_path):
     ended(run_demo("gresho", "--out", tmp_path))
     assert [r["variant"] for r in json.loads((tmp_path / "gresho.json").read_text())] == ["FLIP/PIC", "affine-FLIP",
-                                                                                          "FEM-only"]
+                                                                                          "vortex settings", "FEM-only"]
 
 
 def test_column_at_rest_demo_and_its_bad_flag(tmp_path):
