@@ -70,7 +70,7 @@ if MPI.COMM_WORLD.rank == 0:
 
 # %%
 study = vortices.gresho("affine-FLIP", args.cells, args.dt, END, basis=args.basis, shifting=vortices.SHIFTING,
-                        surface_aware=True, pic={"pressure_work": "increment", **vortices.TURNING})
+                        surface_aware=True, pic=vortices.VORTEX_SETTINGS)
 study["variant"] = "vortex settings"
 rows.append(study)
 if MPI.COMM_WORLD.rank == 0:

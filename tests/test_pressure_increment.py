@@ -59,7 +59,7 @@ def test_the_gresho_vortex_with_turning_shifts_meets_issue_11():
     kinetic energy within 1 % and angular momentum within 0.1 %, the core kept full (in divergence form its smoothed
     density falls to 0.43 of the water's)."""
     r = vortices.gresho("affine-FLIP", 64, 0.4 / 64, 3.0, shifting=vortices.SHIFTING, surface_aware=True,
-                        pic={"pressure_work": "increment", **vortices.TURNING})
+                        pic=vortices.VORTEX_SETTINGS)
     print(r)
     assert r["status"] == "completed"
     assert -0.0100 < r["ke"] < 0  # measured -0.757 % (in divergence form -2.12 %, by parts -0.903 %)

@@ -42,7 +42,7 @@ from fempm.particles import Particles, Rectangle
 from fempm.quadrature import GaussForm
 from fempm.verification import advance, sample
 
-__all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "TURNING", "VARIANTS", "WHOLE_SHARE", "angular_momentum",
+__all__ = ["NOISE_ONLY", "NOISE_ONLY_TURNING", "RHO", "SHIFTING", "TURNING", "VARIANTS", "VORTEX_SETTINGS", "WHOLE_SHARE", "angular_momentum",
            "fem_reference", "gresho", "gresho_pressure", "gresho_speed", "kinetic_energy", "largest_change",
            "taylor_green"]
 
@@ -57,6 +57,9 @@ NOISE_ONLY = {"pic_rate": 0.0, "noise_rate": 300.0}
 TURNING = {"shifting_keeps_angular_momentum": True}
 #: the same with the share on the noise alone
 NOISE_ONLY_TURNING = {**NOISE_ONLY, **TURNING}
+#: the settings the README gives for a vortex study: the last step's pressure by parts
+#: (``Scheme.pressure_work = "increment"``) and shifts that add no angular momentum
+VORTEX_SETTINGS = {"pressure_work": "increment", **TURNING}
 #: the shipped dam break's particle shifting (``scenes/dambreak.toml``, ``solver.shifting``; fempm.shifting)
 SHIFTING = 4.0
 CENTRE = np.array([0.5, 0.5])
