@@ -149,7 +149,7 @@ class ImplicitSolver(Stepper):
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
-        # with the split the shifting fades at rest (fempm.shifting)
+        # with the split (either known pressure) the shifting fades at rest (fempm.shifting)
         rest_speed = (REST_SPEED * np.sqrt(np.linalg.norm(physics.gravity) * self.grid.h)
                       if s.constants["split"] else 0.0)
         self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES],

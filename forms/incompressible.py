@@ -217,7 +217,7 @@ def pressure_work(s, p, w):
         -p J* div_x w + by_parts_excess(H)  =  -(p - D H) J* div_x w + w . cof F* grad(D H)
 
     whose integral is ``D H w . n`` on the water's edge, zero where ``D H`` vanishes at the free surfaces (``H``
-    does within two cells of them). At the particles the hydrostatic pressure then balances gravity through its
+    does within two cells of them; the last step's pressure, below, with ``D``). At the particles the hydrostatic pressure then balances gravity through its
     gradient, not through the quadrature's error in ``div(H w)`` times its level, and the Jacobian is the
     divergence form's (``H`` is known at the solve). With ``solver.pressure_work = "increment"`` (``split`` = 1 too)
     ``H`` is the last step's pressure: only the step's change ``p - D H`` works in divergence form, so the
