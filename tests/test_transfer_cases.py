@@ -131,6 +131,13 @@ def test_shifts_that_add_no_angular_momentum_keep_the_gresho_vortex_s_angular_mo
     assert abs(r["L"]) < 0.0003  # measured -0.019 % (-0.124 %)
 
 
+def _vortex_settings_beside(defect):
+    """A test over the vortex settings (``vortices.VORTEX_SETTINGS``, which pass) and the divergence form (``defect``,
+    a strict expected failure)."""
+    return pytest.mark.parametrize("scheme", [vortices.VORTEX_SETTINGS, pytest.param({}, marks=defect)],
+                                   ids=["vortex-settings", "divergence"])
+
+
 _CORE_DEFECT = pytest.mark.xfail(strict=True, reason=(
     "an open defect of the divergence form (solver.pressure_work = 'divergence', or the split, which without gravity "
     "is the same): from t ~ 0.3 the vortex's core thins, PSPG turning the particle quadrature's pressure error into a "
@@ -140,8 +147,7 @@ _CORE_DEFECT = pytest.mark.xfail(strict=True, reason=(
     "filled: tests/test_pressure_points.py; docs/notes-accuracy.md)"))
 
 
-@pytest.mark.parametrize("scheme", [vortices.VORTEX_SETTINGS, pytest.param({}, marks=_CORE_DEFECT)],
-                         ids=["vortex-settings", "divergence"])
+@_vortex_settings_beside(_CORE_DEFECT)
 def test_the_gresho_vortex_keeps_its_core_filled(scheme):
     """64², max u dt/h = 0.4, t = 1, the shipped particle handling: the smoothed density at the vortex's
     centre stays within 10 % of the water's."""
@@ -199,8 +205,7 @@ _REFINEMENT_DEFECT = pytest.mark.xfail(strict=True, reason="in divergence form (
 
 
 @pytest.mark.full
-@pytest.mark.parametrize("scheme", [vortices.VORTEX_SETTINGS, pytest.param({}, marks=_REFINEMENT_DEFECT)],
-                         ids=["vortex-settings", "divergence"])
+@_vortex_settings_beside(_REFINEMENT_DEFECT)
 def test_taylor_green_loss_falls_under_refinement(scheme):
     """nu = 1e-6, U dt/h = 0.4, the dam break's particle shifting: the loss at 128² below the loss at 64²."""
     fine, coarse = (vortices.taylor_green("affine-FLIP", n, 0.4 / n, 1e-6, shifting=vortices.SHIFTING,
@@ -216,8 +221,7 @@ _TURNOVER_DEFECT = pytest.mark.xfail(strict=True, reason="in divergence form (or
 
 
 @pytest.mark.full
-@pytest.mark.parametrize("scheme", [vortices.VORTEX_SETTINGS, pytest.param({}, marks=_TURNOVER_DEFECT)],
-                         ids=["vortex-settings", "divergence"])
+@_vortex_settings_beside(_TURNOVER_DEFECT)
 def test_taylor_green_over_one_turnover(scheme):
     """nu = 1e-6, 64², U dt/h = 0.4, to t = 1, the dam break's particle shifting: issue 11's 1 % per unit
     time over a whole turnover."""
