@@ -154,7 +154,7 @@ def test_the_gresho_vortex_keeps_its_core_filled(scheme):
     r = vortices.gresho("affine-FLIP", 64, 0.4 / 64, 1.0, shifting=vortices.SHIFTING, surface_aware=True, pic=scheme)
     print(r)
     assert r["status"] == "completed"
-    assert r["core"] > 0.9  # measured 0.998 with the vortex settings (the divergence form 0.646)
+    assert r["core"] > 0.9  # measured 1.000 with the vortex settings (the divergence form 0.646)
 
 
 def test_column_stays_at_rest_with_affine_flip():
