@@ -45,18 +45,19 @@ def test_dambreak_checks_its_front_against_interfoam(tmp_path):
     out = ended(run_demo("dambreak", "--end-time", 0.27, "--quiet", "--out", tmp_path))
     summary = json.loads((tmp_path / "summary.json").read_text())
     print(out, {k: v for k, v in summary.items() if k.startswith("front")})
-    # 1.77 % with the hydrostatic pressure's work split off (the scene's solver.pressure_work; the divergence form 1.78 %);
+    # 1.86 % with the last step's pressure by parts and turning shifts (the scene's solver.pressure_work and
+    # shifting_keeps_angular_momentum since 2026-11-30); 1.77 % with the hydrostatic pressure's work split off (the divergence form 1.78 %);
     # 1.78 % with G2P over the moved functions; 1.80 % with the default PIC shares (whole 30/s, then the noise's 300/s); 1.79 % with the whole share alone (100/s),
     # 2 x 2 particles per cell at Courant 0.8, shifted, PSPG's displacement in a step bounded (1.81 % before), PSPG's
     # tau free of the step (with tau's T = max(dt, ...):
     # 1.95 %, K-O 13.24 %; 4 x 4 at Courant 0.6 unshifted, the scene until now: 1.30 %
     # in 65 steps; 2 x 2 at Courant 0.5 unshifted: 1.84 % in 74 steps; from a_0 = 0: 2.01 %; FLIP/PIC, the seed's
     # transfer: 5.41 %)
-    assert "front vs interFoam 160²: 1.77 %" in out
+    assert "front vs interFoam 160²: 1.86 %" in out
     assert summary["status"] == "completed" and summary["steps"] == 48 and summary["particles"] == 800
-    assert summary["front_difference_vs_interfoam_160"] <= 0.0185  # measured 0.0181 (RMS, 0.3 < T <= 3; 4 x 4 unshifted 0.0130)
+    assert summary["front_difference_vs_interfoam_160"] <= 0.019  # measured 0.0186 (the split 0.0181) (RMS, 0.3 < T <= 3; 4 x 4 unshifted 0.0130)
     # the experiment's gate and friction slow its front: less numerical damping is further from it
-    assert summary["front_rms_error_vs_koshizuka_oka"] <= 0.137  # measured 0.1346 (4 x 4 unshifted 0.1492; FLIP/PIC 0.0970); PySPH: 11 %
+    assert summary["front_rms_error_vs_koshizuka_oka"] <= 0.137  # measured 0.1331 (the split 0.1346; 4 x 4 unshifted 0.1492; FLIP/PIC 0.0970); PySPH: 11 %
     for name in ("front.png", "front.csv", "volume.csv", "particles.pvd", "grid.pvd", "snapshot_t0.200.png",
                  "snapshot_final.png"):
         assert (tmp_path / name).stat().st_size > 0, name

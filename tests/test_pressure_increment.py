@@ -1,9 +1,9 @@
 """The last step's pressure taken by parts, only the step's change in divergence form
 (``solver.pressure_work = "increment"``: forms/incompressible.py, ``pressure_work``; fempm.hydrostatic,
-``LastPressure``): the known pressure, the vortices of issue 11, the dam break's wall gauges and its run at ten
-times the seed's step, and the dam break on 1 and 2 ranks."""
+``LastPressure``; the shipped scene's): the known pressure, the vortices of issue 11 and the dam break on 1 and 2
+ranks. The dam break's wall gauges are tests/test_wall_pressure.py's, its run at ten times the seed's step
+tests/hard's."""
 
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,14 +12,12 @@ from mpi4py import MPI
 
 import fempm
 from fempm import transfer
-from fempm.cases import dambreak, hard, vortices
+from fempm.cases import dambreak, vortices
 from fempm.errors import InputError
 from fempm.hydrostatic import LAST_PRESSURE_COURANT, LastPressure
+from fempm.scene import load_scene
 from fempm.space import Space
 from helpers import assert_the_dam_break_is_the_same_on_1_and_2_ranks
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-import wall_pressure  # noqa: E402
 
 INCREMENT = {"solver.pressure_work": "increment"}
 
@@ -43,14 +41,21 @@ def test_the_known_pressure_is_the_particles_pressure_times_its_share(courant, s
     assert not known[~reached].any()
 
 
+def test_the_vortex_settings_are_the_shipped_scenes():
+    """The vortices below run the shipped dam break's handling of the pressure and of the shifts."""
+    solver = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "dambreak.toml").solver
+    assert {key: getattr(solver, key) for key in vortices.VORTEX_SETTINGS} == vortices.VORTEX_SETTINGS
+
+
 def test_taylor_greens_loss_falls_under_refinement():
     """Taylor-Green (nu = 1e-6, U dt/h = 0.4, to t = 0.25, the shipped particle shifting): issue 11 asks a loss that
     falls as h does; in divergence form it rises (4.29e-3 and 4.50e-3 at 32² and 64², 7.21e-3 at 128²)."""
     coarse, fine = (vortices.taylor_green("affine-FLIP", n, 0.4 / n, 1e-6, shifting=vortices.SHIFTING,
-                                          pic={"pressure_work": "increment"}) for n in (32, 64))
+                                          pic=vortices.VORTEX_SETTINGS) for n in (32, 64))
     print(coarse["numerical"], fine["numerical"])
     assert coarse["status"] == fine["status"] == "completed"
-    # measured 5.47e-3 and 2.06e-3 per unit time (6.97e-4 at 128²; with turning shifts 5.54e-3 / 2.10e-3 / 7.10e-4)
+    # measured 5.54e-3 and 2.10e-3 per unit time (7.10e-4 at 128²; with each particle shifted on its own 5.47e-3 /
+    # 2.06e-3 / 6.97e-4)
     assert 0 < fine["numerical"] < 0.45 * coarse["numerical"] < 2.5e-3
 
 
@@ -68,35 +73,11 @@ def test_the_gresho_vortex_with_turning_shifts_meets_issue_11():
     assert r["core"] > 0.99  # measured 0.998
 
 
-def test_the_right_wall_gauges_of_the_dam_break_stay_steady():
-    """Issue 11's gauge targets, 0.3-0.6 s: noise below 5 % of the mean, the mean within 10 % of interFoam 160²."""
-    result, _ = wall_pressure.run(INCREMENT)
-    assert result["status"] == "completed"
-    probes = {name: probe["fempm"] for name, probe in result["probes"].items() if name.startswith("right_")}
-    noise = [probe["noise"] for probe in probes.values()]
-    means = [probe["mean_vs_interfoam"] for probe in probes.values()]
-    print(noise, means, result["front_vs_interfoam"])
-    assert max(noise) < 0.05  # measured 1.3 / 1.3 / 1.7 / 2.8 % (the split 2.4 / 2.5 / 2.8 / 4.3 %)
-    assert max(abs(m) for m in means) < 0.10  # measured -1.6 / -1.5 / -2.9 / -8.9 % (the split +0.9 / -1.1 / +1.2 / -3.2 %)
-    assert result["front_vs_interfoam"] < 0.025  # measured 1.86 % (the split 1.79 %)
-
-
-def test_the_dam_break_at_ten_times_the_seeds_step_completes():
-    """At a fixed 10 ms the flow crosses up to three cells a step: the known pressure's share falls to zero from a
-    Courant number of 2 (LAST_PRESSURE_COURANT). Taken whole, the energy grew at the wall impact and the energy
-    check stopped the run at 0.30 s."""
-    o = hard.run_case("dt-10x", pressure_work="increment")
-    print(o.run, o.energy_max, o.energy_rise, o.speed_ratio)
-    assert (o.run.status, o.run.cause) == ("completed", "")
-    assert o.energy_max <= 1.0 + 1e-12  # measured 1.0000
-    assert o.energy_rise < 0.045  # measured 0.0399 (the split 0.0316)
-
-
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="spawns its own mpirun")
 def test_the_dam_break_increment_is_the_same_on_1_and_2_ranks(tmp_path):
-    """The shipped scene cut to its first 100 steps at the seed's step, the increment: the front and the gauges
+    """The shipped scene (the increment) cut to its first 100 steps at the seed's step: the front and the gauges
     agree on 1 and 2 ranks (the particles' pressure is projected across ranks)."""
-    assert_the_dam_break_is_the_same_on_1_and_2_ranks(tmp_path, pressure_work="increment")
+    assert_the_dam_break_is_the_same_on_1_and_2_ranks(tmp_path)
 
 
 def test_the_increment_with_the_gauss_points_is_refused():
