@@ -8,7 +8,7 @@ each one's measures as a row and writes ``docs/hard-cases.md`` from ``templates/
     python benchmarks/hard_cases.py --pressure-quadrature gauss    # docs/hard-cases-gauss.md
     python benchmarks/hard_cases.py --pressure-work by-parts       # docs/hard-cases-by-parts.md
     python benchmarks/hard_cases.py --pressure-work divergence     # docs/hard-cases-divergence.md
-    python benchmarks/hard_cases.py --pressure-work increment      # docs/hard-cases-increment.md
+    python benchmarks/hard_cases.py --pressure-work split          # docs/hard-cases-split.md
 
 Default: the short versions the tests run in CI; ``--full``: the long ones too (hours: the
 40 s dam break at the seed's step among them).
@@ -36,11 +36,12 @@ OPTIONS = {
                  "tests do not assert on."),
     "divergence": (" --pressure-work divergence", "hard-cases-divergence.md", " This page: the same cases with the "
                    "pressure's work in divergence form throughout (`solver.pressure_work = \"divergence\"`, method.md's "
-                   "`-p div w`; the shipped dam break's until it took the split), which the tests do not assert on."),
-    "increment": (" --pressure-work increment", "hard-cases-increment.md", " This page: the same cases with the last "
-                  "step's pressure by parts and the step's change in divergence form (`solver.pressure_work = "
-                  "\"increment\"`), on which the tests assert only that the dam break at ten times the seed's step "
-                  "completes (`tests/test_pressure_increment.py`)."),
+                   "`-p div w`; the shipped dam break's until 2026-11-29), which the tests do not assert on."),
+    "split": (" --pressure-work split", "hard-cases-split.md", " This page: the same cases with the hydrostatic "
+              "pressure's work alone split off and taken by parts (`solver.pressure_work = \"split\"`, the shipped "
+              "dam break's until 2026-11-30, then with each particle shifted on its own; here with the scene's turning "
+              "shifts), on which the tests assert only that the dam break at ten times the seed's step completes "
+              "(`tests/test_hydrostatic.py`)."),
 }
 
 
@@ -64,7 +65,7 @@ def main(argv=None):
                         help="where the pressure's terms are integrated (solver.pressure_quadrature)")
     parser.add_argument("--pressure-work", choices=PRESSURE_WORKS, default=None,
                         help="how the momentum takes the pressure's work (solver.pressure_work; default: each case's "
-                        "own, the split in the dam break's)")
+                        "own, the last step's pressure by parts in the dam break's)")
     parser.add_argument("--case", nargs="+", choices=list(CASES), default=list(CASES), help="only these cases")
     args = parser.parse_args(argv)
     if args.pressure_quadrature == "gauss" and args.pressure_work not in (None, "divergence"):

@@ -1,10 +1,11 @@
 """Still water: does water at rest stay at rest, and does settling water move as it should? (issue 11)
 
 Both studies run the shipped scene's step and solver (``scenes/dambreak.toml``: Courant 0.8, dt at
-most 10 ms, affine-FLIP, particle shifting, the surface-aware volume correction, the hydrostatic pressure's
-work split off, ``solver.pressure_work = "split"``) and five of its options: the divergence form
-(``solver.pressure_work = "divergence"``, method.md's), with it ``solver.transfer = "flip"`` and
-``solver.pressure_quadrature = "gauss"``, ``solver.pressure_work = "by-parts"`` and ``"increment"``:
+most 10 ms, affine-FLIP, particle shifting with turning shifts, the surface-aware volume correction, the last
+step's pressure's work by parts, ``solver.pressure_work = "increment"``) and five of its options: the hydrostatic
+pressure's work alone split off (``"split"``, each particle shifted on its own: the shipped scene's until
+2026-11-30), the divergence form (``"divergence"``, method.md's), with it ``solver.transfer = "flip"`` and
+``solver.pressure_quadrature = "gauss"``, and ``solver.pressure_work = "by-parts"``:
 
 * ``rest``: the dam break's column (L = 146 mm wide, 2L deep, 2 x 2 particles per cell) in a tank as
   wide as it (10 x 40 cells), its particles moved at random before the first step by at most a share
@@ -40,11 +41,13 @@ from fempm.errors import SimulationDiverged
 from fempm.simulation import build_solver
 
 #: the variants each study runs: label -> scene changes
-DIVERGENCE = {"solver.pressure_work": "divergence"}  #: method.md's -p div w, the shipped scene's until the split
-VARIANTS = {"shipped": {}, "divergence form": DIVERGENCE, "FLIP": {"solver.transfer": "flip", **DIVERGENCE},
+DIVERGENCE = {"solver.pressure_work": "divergence"}  #: method.md's -p div w, the shipped scene's until 2026-11-29
+#: the hydrostatic pressure's work alone by parts, each particle shifted on its own: the shipped scene's until 2026-11-30
+SPLIT = {"solver.pressure_work": "split", "solver.shifting_keeps_angular_momentum": False}
+VARIANTS = {"shipped": {}, "the split": SPLIT, "divergence form": DIVERGENCE,
+            "FLIP": {"solver.transfer": "flip", **DIVERGENCE},
             "Gauss option": {"solver.pressure_quadrature": "gauss", **DIVERGENCE},
-            "work by parts": {"solver.pressure_work": "by-parts"},
-            "the last step's pressure by parts": {"solver.pressure_work": "increment"}}
+            "work by parts": {"solver.pressure_work": "by-parts"}}
 #: shares of the particle spacing the column's particles are moved by (0: the lattice)
 DISORDER = (0.0, 1e-5, 1e-4, 1e-3, 0.3)
 REST_TIMES = (1.0, 2.0, 4.0)  #: s, when the rest study reads the fastest particle
