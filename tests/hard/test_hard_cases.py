@@ -273,17 +273,22 @@ def test_a_long_run_settles_with_its_volume(full):
         # across such variants)
         # measured 2.280, 1.0, 0.0020 to 40 s with G2P over the moved functions (2.250, 1.0, 0.003 with the default
         # shares, docs/hard-cases.md): its first 2 s are test_dam_break_of_water's, whose jet this is
-        # with the hydrostatic pressure's work split off (the scene's): the energy's largest rise 0.0066 over 40 s
-        assert_sound(o, 800, speed_ratio=2.3, energy_max=1.0 + 0.009, energy_rise=0.008)
+        # with the hydrostatic pressure's work split off: the energy's largest rise 0.0066 over 40 s; 2.412, 1.0, 0.0016
+        # with the last step's pressure by parts and turning shifts (the scene's since 2026-11-30; the faster jet of
+        # test_dam_break_of_water)
+        assert_sound(o, 800, speed_ratio=2.5, energy_max=1.0 + 0.009, energy_rise=0.008)
     else:  # the big step's energy error: the first 2 s are test_dam_break_at_ten_times_the_seeds_step's
         assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.037)
     t, centroid = o.history["t"], np.asarray(o.history["centroid"])
-    if full:  # the layer's surface after 40 s: 74.4 mm (docs/hard-cases.md; 66.7-76.8 mm on earlier codes)
-        assert o.surface_height == pytest.approx(SETTLED_DEPTH, rel=0.10)
+    if full:  # the layer's surface after 40 s, at one instant of a layer still sloshing: 65.8 mm with the last step's
+        # pressure by parts and turning shifts (the scene's since 2026-11-30), 72.8 mm with the split, 74.4 mm before
+        # (docs/hard-cases.md; 66.7-76.8 mm on earlier codes): it moves with round-off, the mean below does not
+        assert o.surface_height == pytest.approx(SETTLED_DEPTH, rel=0.12)
         # its mean depth over the last 5 s, twice its centroid's height: 75.8 mm, std 1.5 mm, with PSPG's tau free of
         # the step (75.4 mm with tau's T = max(dt, ...)) and the scene's particle shifting (without 76.4 mm, std 1.0 mm
         # over those seconds; before the crowding tolerance 77.05; 76.92 with PSPG's viscous part); 76.3 mm with the
-        # hydrostatic pressure's work split off (the scene's)
+        # hydrostatic pressure's work split off; 76.1 mm, std 1.8 mm, with the last step's pressure by parts and turning
+        # shifts (the scene's since 2026-11-30)
         assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0763, rel=0.01)
     else:  # after 5 s the layer still sloshes, and its surface at one instant moves with round-off (75.1 and 67.4 mm
         # for two codes that differ in the shifting's last bits): its mean depth over the last second, twice its
