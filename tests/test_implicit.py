@@ -120,7 +120,8 @@ def test_the_shipped_scenes_front_is_no_worse_at_half_and_a_quarter_of_its_step(
         summary, front = run_dambreak(tmp_path / f"c{courant}", {"time.end": 0.28, "time.courant": courant})
         errors.append(dambreak.front_measures(front)["front_difference_vs_interfoam_160"])
     print(errors)
-    # measured 1.783, 1.742, 1.754 % with the hydrostatic pressure's work split off (the scene's); in divergence form
+    # measured 1.874, 1.840, 1.837 % with the last step's pressure by parts and turning shifts (the scene's since
+    # 2026-11-30); 1.783, 1.742, 1.754 % with the hydrostatic pressure's work split off; in divergence form
     # 1.800, 1.766, 1.799 % with the default PIC shares (whole 30/s, then the noise's 300/s); with the whole
     # share alone at 100/s:
     assert errors[0] <= 0.0190  # measured 1.797 % (1.814 % before PSPG's displacement in a step was bounded; with PSPG's

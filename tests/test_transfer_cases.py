@@ -323,7 +323,7 @@ def test_column_stays_at_rest_for_14_s():
 
 
 _DIVERGENCE_DEFECT = pytest.mark.xfail(strict=True, reason=(
-    "an open defect of the divergence form (solver.pressure_work = 'divergence', the shipped scene's until the split): "
+    "an open defect of the divergence form (solver.pressure_work = 'divergence', the shipped scene's until 2026-11-29): "
     "its column holds at rest only from the seeding lattice. Its particles moved by at most 1e-4 of their spacing, at "
     "random, it reaches 9.4e-2 m/s at 1.5 s (by 1e-5: 1.2e-2 m/s at 6 s; by 1e-3: 0.11 m/s at 0.5 s; by 0.3, a flow's "
     "disorder: 0.2-0.4 m/s from 0.5 s on); also at a fixed 1 ms step, without the end-of-step map (later), the "
@@ -335,7 +335,7 @@ _DIVERGENCE_DEFECT = pytest.mark.xfail(strict=True, reason=(
     "from a disordered start' and 'Where the disordered column's energy comes from')"))
 
 
-@pytest.mark.parametrize("work", ["split", pytest.param("divergence", marks=_DIVERGENCE_DEFECT)])
+@pytest.mark.parametrize("work", ["increment", "split", pytest.param("divergence", marks=_DIVERGENCE_DEFECT)])
 def test_a_column_at_rest_from_slightly_disordered_particles_stays_at_rest(work):
     """The dam break's column in a tank as wide as it, the shipped scene's step and solver, its particles moved
     at random by at most 1e-4 of their spacing (0.73 micrometres): a start no flow ever leaves as exact as a lattice."""
@@ -348,7 +348,10 @@ def test_a_column_at_rest_from_slightly_disordered_particles_stays_at_rest(work)
     p.fields["x"] = solver.walls.keep_inside(p.x + 1e-4 * spacing * np.random.default_rng(1).uniform(-1, 1, p.x.shape))
     while solver.time < 2.0 - 1e-9:
         solver.step(until=2.0)
-    assert solver.fastest() < 1e-3  # measured 1.0e-4 m/s, the shipped split (the divergence form 0.17 m/s; from the lattice 9.3e-5 m/s)
+    print(work, solver.fastest())
+    # measured 1.9e-4 m/s with the shipped increment; 1.0e-4 m/s with the split (the divergence form 0.17 m/s; from the
+    # lattice 9.3e-5 m/s); each with the scene's turning shifts
+    assert solver.fastest() < 1e-3
 
 
 def test_column_stays_at_rest_at_ten_ms_steps():
