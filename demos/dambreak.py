@@ -59,10 +59,10 @@
 # and where they crowd ($\tilde\rho > \rho$) the step asks for expansion. The integrals are sums
 # over the particles, $\int f\,\mathrm{d}x = \sum_p V_p f(x_p)$; the inertia is lumped.
 # The shipped scene adds to the pressure's work an exact zero, $\int \nabla\cdot(D H w)\,\mathrm{d}x$, with $H$ the
-# hydrostatic pressure estimated each step from the water's depth and $D$ a weight that vanishes at the free
-# surface: at the particles the hydrostatic part then works through $w\cdot\nabla(DH)$, not through the
-# quadrature's error in $\nabla\cdot(p\,w)$, and still or deep water stays calm (`solver.pressure_work = "split"`,
-# `fempm/hydrostatic.py`).
+# last step's pressure (the particles' pressure projected to the grid) and $D$ a weight that vanishes at the free
+# surface: at the particles the last step's pressure then works through $w\cdot\nabla(DH)$, and only the step's
+# change of pressure meets the quadrature's error in $\nabla\cdot(p\,w)$, so that still or deep water and
+# vortices stay calm (`solver.pressure_work = "increment"`, `fempm/hydrostatic.py`).
 # These forms are `forms/incompressible.py`, one function per term: edit it, or pass a copy with
 # `--forms`, to change the physics.
 

@@ -60,13 +60,13 @@ if MPI.COMM_WORLD.rank == 0:
               f"u_theta error {100 * r['profile']:.2f} %  ({r['wall']:.1f} s) {r['cause']}")
 
 # %% [markdown]
-# ## The settings for a vortex study
+# ## The shipped scene's settings
 #
-# For vortices the README's table of pressure treatments takes the shipped scene's particle handling
-# (shifting, the surface-aware volume correction) with the last step's pressure taken by parts and
-# shifts that add no angular momentum (`solver.pressure_work = "increment"`,
-# `solver.shifting_keeps_angular_momentum = true`). At 64² and t = 3 that keeps issue 11's 1 % and
-# 0.1 % (`docs/verification.md`); here, the demo's grid and time.
+# The shipped dam break (`scenes/dambreak.toml`) shifts its particles, corrects the volume surface-aware,
+# takes the last step's pressure by parts and shifts without adding angular momentum
+# (`solver.pressure_work = "increment"`, `solver.shifting_keeps_angular_momentum = true`;
+# `fempm.cases.vortices.VORTEX_SETTINGS`). At 64² and t = 3 that keeps issue 11's 1 % and 0.1 %
+# (`docs/verification.md`); here, the demo's grid and time.
 
 # %%
 study = vortices.gresho("affine-FLIP", args.cells, args.dt, END, basis=args.basis, shifting=vortices.SHIFTING,

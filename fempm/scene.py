@@ -373,7 +373,7 @@ def _parse(data: dict, source: Path, forms: str | Path | None) -> Scene:
     if solver.pressure_work != "divergence" and solver.pressure_quadrature == "gauss":
         raise InputError(f"solver.pressure_work = {solver.pressure_work!r} is a form of the particles' quadrature: with "
                          "solver.pressure_quadrature = 'gauss' the pressure's work is at the Gauss points already; "
-                         "set solver.pressure_work = 'divergence' (the shipped dam break sets 'split')")
+                         "set solver.pressure_work = 'divergence' (the shipped dam break sets 'increment')")
     _check_folder(values["output"].folder)
     return Scene(**values)
 

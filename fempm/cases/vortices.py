@@ -57,8 +57,9 @@ NOISE_ONLY = {"pic_rate": 0.0, "noise_rate": 300.0}
 TURNING = {"shifting_keeps_angular_momentum": True}
 #: the same with the share on the noise alone
 NOISE_ONLY_TURNING = {**NOISE_ONLY, **TURNING}
-#: the settings the README gives for a vortex study: the last step's pressure by parts
-#: (``Scheme.pressure_work = "increment"``) and shifts that add no angular momentum
+#: the shipped dam break's handling of the pressure and the shifts (``scenes/dambreak.toml``), which the vortex
+#: studies take: the last step's pressure by parts (``Scheme.pressure_work = "increment"``) and shifts that add no
+#: angular momentum
 VORTEX_SETTINGS = {"pressure_work": "increment", **TURNING}
 #: the shipped dam break's particle shifting (``scenes/dambreak.toml``, ``solver.shifting``; fempm.shifting)
 SHIFTING = 4.0
