@@ -42,9 +42,7 @@ from fempm.simulation import build_solver
 
 #: the variants each study runs: label -> scene changes
 DIVERGENCE = {"solver.pressure_work": "divergence"}  #: method.md's -p div w, the shipped scene's until 2026-11-29
-#: the hydrostatic pressure's work alone by parts, each particle shifted on its own: the shipped scene's until 2026-11-30
-SPLIT = {"solver.pressure_work": "split", "solver.shifting_keeps_angular_momentum": False}
-VARIANTS = {"shipped": {}, "the split": SPLIT, "divergence form": DIVERGENCE,
+VARIANTS = {"shipped": {}, "the split": dambreak.SPLIT, "divergence form": DIVERGENCE,
             "FLIP": {"solver.transfer": "flip", **DIVERGENCE},
             "Gauss option": {"solver.pressure_quadrature": "gauss", **DIVERGENCE},
             "work by parts": {"solver.pressure_work": "by-parts"}}

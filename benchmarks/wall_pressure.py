@@ -49,7 +49,7 @@ STUDY = [
                 "shifting A = 4 with turning shifts, the last step's pressure by parts)", {}),
     ("unshifted", "no particle shifting", {"solver.shifting": 0.0}),
     ("split", "the hydrostatic pressure's work split off, each particle shifted on its own (the default until 2026-11-30)",
-     {"solver.pressure_work": "split", "solver.shifting_keeps_angular_momentum": False}),
+     dambreak.SPLIT),
     ("unturned", "each particle shifted on its own (no common turn)", {"solver.shifting_keeps_angular_momentum": False}),
     ("divergence", "the divergence form (method.md's; the default until 2026-11-29)", {"solver.pressure_work": "divergence"}),
     ("ppc9", "3 × 3 per cell", {"bodies.0.particles_per_cell": 9}),

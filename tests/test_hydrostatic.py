@@ -110,8 +110,7 @@ def test_the_split_and_the_increment_hold_a_column_moved_by_1e_4_of_a_spacing_to
 def test_the_split_leaves_the_dam_break_and_its_large_steps_as_they_were():
     """The front, the gauges and ten times the seed's step (which the work by parts does not survive); each shift
     on its own, as the scene took the split until 2026-11-30."""
-    result, _ = wall_pressure.run({"solver.pressure_work": "split", "solver.shifting_keeps_angular_momentum": False},
-                                  end_time=3.2)
+    result, _ = wall_pressure.run(dambreak.SPLIT, end_time=3.2)
     assert result["status"] == "completed"
     assert result["front_vs_interfoam"] < 0.02  # measured 1.79 % (the divergence form: 1.80 %)
     noise = [result["probes"][name]["fempm"]["noise"] for name in ("right_y0.005", "right_y0.0584")]

@@ -32,7 +32,7 @@ from fempm.options import Physics, Scheme
 from fempm.scene import Scene, parse_scene
 from fempm.simulation import build_material, check_folder
 
-__all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "SEED_PARTICLES", "SEED_PER_CELL", "TANK", "WIDTH", "add_flags", "changes",
+__all__ = ["AUTO_SOUND_SPEED", "FREE_FALL", "GRAVITY", "HEIGHT", "SCENE", "SEED_PARTICLES", "SEED_PER_CELL", "SPLIT", "TANK", "WIDTH", "add_flags", "changes",
            "at_seed_setup", "compare_front", "explicit_solver", "flag_names", "front_measures", "petsc_options", "plot_front",
            "prepare_folder", "read_front", "scene", "seed_setup", "stop"]
 
@@ -45,6 +45,9 @@ GRAVITY = references.GRAVITY  #: m/s^2
 SEED_DT = Scheme.dt  #: the seed's fixed step, 1 ms (the shipped scene's step adapts to the flow)
 SEED_PER_CELL = 4  #: the seed's particles per cell, 2 x 2 (the shipped scene's too)
 SEED_PARTICLES = {"bodies.0.particles_per_cell": SEED_PER_CELL}  #: the :func:`scene` change to the seed's particles
+#: the :func:`scene` changes back to the shipped pressure handling of 2026-11-29/30: the hydrostatic pressure's work
+#: alone by parts, each particle shifted on its own (the scene now takes the last step's pressure, turning shifts)
+SPLIT = {"solver.pressure_work": "split", "solver.shifting_keeps_angular_momentum": False}
 FREE_FALL = sqrt(2 * GRAVITY * HEIGHT)  #: the column's free-fall speed, the flow's largest, m/s
 AUTO_SOUND_SPEED = 10 * FREE_FALL  #: the weakly compressible practice's artificial sound speed, m/s
 #: the outputs ``files=False`` leaves out: ParaView series, pictures, checkpoints
