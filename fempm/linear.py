@@ -21,7 +21,10 @@ them. Two sets of options are named here:
   apart, so its LU fills in fast). With the cycle each iteration gains about a decade, so the
   iteration stops at :data:`MULTIGRID_RTOL` (1e-10, a hundredth of Newton's tolerance), not at
   round-off (:func:`schur_rtol`; a ``ksp_rtol`` other than :data:`EXACT_RTOL` among the options holds
-  at every size). Should the iteration fail, the system is solved again by MUMPS LU (:data:`DIRECT`);
+  at every size). Should the iteration fail, the system is solved again by MUMPS LU (:data:`DIRECT`).
+  With these options as they are, a system of up to :data:`COMPILED_SYSTEM` free dofs (where S's LU would be
+  PETSc's) is solved by fempm's compiled solve instead (:mod:`fempm.small_system`: the same factorisation
+  iterated, S's LU in RCM order, with no split, blocks or pattern to set up), by the split where it declines;
 * :data:`DIRECT`: LU of the whole system by MUMPS (on several ranks sequential MUMPS on every
   rank, see :func:`direct_options`);
 * :data:`ITERATIVE`: GMRES preconditioned on the right by a Schur-complement field split of the
@@ -58,10 +61,11 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from fempm import small_system
 from fempm.errors import InputError
 from fempm.schur import PATTERN_MARGIN, FreeBlocks
 
-__all__ = ["DIRECT", "EXACT", "EXACT_RTOL", "ITERATIVE", "LARGE_SYSTEM", "MULTIGRID_RTOL", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
+__all__ = ["COMPILED_SYSTEM", "DIRECT", "EXACT", "EXACT_RTOL", "ITERATIVE", "LARGE_SYSTEM", "MULTIGRID_RTOL", "SMALL_SYSTEM", "LinearSolver", "SolveFailed", "check_options",
            "direct_options", "iterative_options", "schur_factor_options", "schur_rtol", "set_options", "writing_option"]
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
@@ -100,6 +104,9 @@ EXACT = {
     "fieldsplit_u_ksp_type": "preonly", "fieldsplit_u_pc_type": "jacobi",
     "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "lu",
 }
+#: Free dofs up to which a one-rank exact solve with the default options is fempm's compiled one
+#: (:mod:`fempm.small_system`: no pattern, set-up or split to keep), PETSc's split where it does not converge.
+COMPILED_SYSTEM = 1500
 #: Free dofs above which S's LU is MUMPS's rather than PETSc's own.
 SMALL_SYSTEM = 1500
 #: Free dofs above which S is solved by a multigrid cycle rather than LU.
@@ -130,6 +137,13 @@ def schur_factor_options(free_dofs: int) -> dict:
     if free_dofs > SMALL_SYSTEM:
         return {"fieldsplit_p_pc_factor_mat_solver_type": "mumps", "fieldsplit_p_mat_mumps_icntl_7": 6}
     return {"fieldsplit_p_pc_factor_mat_solver_type": "petsc", "fieldsplit_p_pc_factor_mat_ordering_type": "rcm"}
+
+
+def _compiled_size(free_dofs: int) -> bool:
+    """Whether a system of ``free_dofs`` is the compiled solve's: up to :data:`COMPILED_SYSTEM`, and where the split
+    would factor S by PETSc's own LU (:func:`schur_factor_options`)."""
+    return (free_dofs <= COMPILED_SYSTEM
+            and schur_factor_options(free_dofs).get("fieldsplit_p_pc_factor_mat_solver_type") == "petsc")
 
 
 def schur_rtol(free_dofs: int) -> float:
@@ -227,6 +241,11 @@ class LinearSolver:
                           and opts.getString(prefix + "pc_fieldsplit_schur_precondition", "") == "selfp"
                           and not any(name.startswith(prefix) and "ainv" in name for name in opts.getAll()))
         self._own_options = own
+        # the default exact solve, no other option: small systems by the compiled solve (fempm.small_system)
+        self.compiles_small = (self.exact_schur and self.options == EXACT
+                               and not any(name.startswith(prefix) for name in opts.getAll()))
+        self.compiled = 0  # solves by the compiled solve
+        self.compiled_declined = 0  # systems it did not solve (a zero pivot, no convergence) and the split did
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
         # one rank, a velocity and a pressure: the blocks and S cut from a grid matrix (fempm.schur)
         self.cuts_blocks = self.selfp and comm.size == 1 and list(self.fields.values()) == [2, 1]
@@ -251,9 +270,10 @@ class LinearSolver:
     def solve(self, A: PETSc.Mat, b: PETSc.Vec, free: np.ndarray, x: PETSc.Vec | None = None) -> PETSc.Vec:
         """Solve ``A[free, free] x[free] = b[free]``; ``x`` is zero on the other dofs.
 
-        When ``A`` and ``free`` are those of the last solve (the values may differ), or with the
-        field split's blocks (:mod:`fempm.schur`) ``free`` lies inside the last solve's padded
-        pattern, the block is extracted into the last one's storage and the solver keeps what
+        A small system with the default exact options is the compiled solve's (:mod:`fempm.small_system`),
+        which keeps nothing. Otherwise, when ``A`` and ``free`` are those of the last solve (the values may
+        differ), or with the field split's blocks (:mod:`fempm.schur`) ``free`` lies inside the last solve's
+        padded pattern, the block is extracted into the last one's storage and the solver keeps what
         depends on the pattern only (the orderings, symbolic factorisations and products).
 
         Args:
@@ -266,6 +286,16 @@ class LinearSolver:
         """
         free = np.asarray(free, dtype=PETSc.IntType)
         if self.cuts_blocks and A.getAttr("fempm_grid_matrix") is not None:
+            if self.compiles_small and _compiled_size(len(free)):
+                values = np.empty(b.getLocalSize())
+                if small_system.solve(A.getAttr("fempm_grid_matrix"), free, b.getArray(readonly=True), EXACT_RTOL,
+                                      values) > 0:
+                    self.compiled += 1
+                    if x is None:
+                        x = b.duplicate()
+                    x.setArray(values)
+                    return x
+                self.compiled_declined += 1
             return self._solve_blocks(A, b, free, x)
         if self.nests_blocks:
             return self._solve_nest(A, b, free, x)

@@ -3,7 +3,7 @@
 One dam-break step from the shipped scene is taken by solvers that differ only in their PETSc
 options: the iterative one (Schur fieldsplit + AMG, ``solver.linear = "iterative"``) must agree
 with LU to 3e-5 relative at its default tolerance (1e-8 at 1e-13), the default exact Schur solve (one rank) to
-round-off while S is solved by LU; the package of
+round-off while S is solved by LU (by the compiled solve, fempm.small_system, on small systems); the package of
 the Schur complement's solver follows the size, and a failed Schur iteration is redone by LU.
 Runs on any number of ranks (the MPI suite repeats them on two).
 """
@@ -77,15 +77,21 @@ def test_an_inner_krylov_solve_makes_the_iterative_solver_flexible():
     assert named["ksp_type"] == "bcgs" and "ksp_pc_side" not in named  # their solver, on its own default side
 
 
-def test_default_solver_is_exact():
-    """One rank: the exact Schur solve, equal to MUMPS LU to round-off, PETSc's LU of S at this size
-    (the scene's ~800 free dofs); several ranks: LU (redundant MUMPS)."""
+def test_default_solver_is_exact(monkeypatch):
+    """One rank: the exact Schur solve, equal to MUMPS LU to round-off: at this size (the scene's ~800 free dofs)
+    the compiled one (fempm.small_system), and PETSc's split with its LU of S where the compiled one is not taken;
+    several ranks: LU (redundant MUMPS)."""
     comm = MPI.COMM_WORLD
     lu, _ = _one_step(comm, petsc=linear.DIRECT if comm.size == 1 else None, steps=3)
     default, solver = _one_step(comm, steps=3)
-    assert _relative_difference(default, lu, comm) < 1e-12  # measured 1.4e-15 (0 on two ranks: the same solver)
+    # measured 2.5e-13 (the compiled solve stops at a residual of 1e-13 |b|; 0 on two ranks: the same solver)
+    assert _relative_difference(default, lu, comm) < 1e-12
     if comm.size == 1:
-        assert solver.exact_schur and solver.ksp.getType() == "fgmres" and solver.fallbacks == 0
+        assert solver.exact_schur and solver.compiled == 4 and solver.compiled_declined == 0  # 3 steps, a_0's solve
+        monkeypatch.setattr(linear, "COMPILED_SYSTEM", 0)
+        split, solver = _one_step(comm, steps=3)
+        assert _relative_difference(split, lu, comm) < 1e-12  # measured 6.7e-14
+        assert solver.compiled == 0 and solver.ksp.getType() == "fgmres" and solver.fallbacks == 0
         assert solver.ksp.getIterationNumber() <= 4  # measured 3
         schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
         assert (schur.getType(), schur.getFactorSolverType()) == ("lu", "petsc")
@@ -97,7 +103,7 @@ def test_schur_factor_follows_the_size(monkeypatch):
     comm = MPI.COMM_SELF
     assert linear.schur_factor_options(linear.SMALL_SYSTEM)["fieldsplit_p_pc_factor_mat_solver_type"] == "petsc"
     assert linear.schur_factor_options(linear.SMALL_SYSTEM + 1)["fieldsplit_p_pc_factor_mat_solver_type"] == "mumps"
-    small, _ = _one_step(comm)
+    small, _ = _one_step(comm)  # the compiled solve (fempm.small_system) where the split would take PETSc's LU
     monkeypatch.setattr(linear, "SMALL_SYSTEM", 0)
     large, solver = _one_step(comm)
     schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()
@@ -136,9 +142,10 @@ def test_failed_schur_iteration_is_redone_by_lu():
     assert _relative_difference(rescued, lu, comm) == 0.0
 
 
-def test_kept_pattern_takes_the_new_values():
+def test_kept_pattern_takes_the_new_values(monkeypatch):
     """A second solve with the same matrix and free dofs keeps the pattern's set-up (orderings,
     symbolic factorisations), yet solves with the matrix's new values, as a new solver would."""
+    monkeypatch.setattr(linear, "COMPILED_SYSTEM", 0)  # the split, as for a larger system
     comm = MPI.COMM_SELF
     scene = load_scene(SCENE)
     solver = build_solver(scene, comm)

@@ -64,9 +64,9 @@ def bound(full: bool, short: float, long: float) -> float:
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
 def test_dam_break_at_ten_times_the_seeds_step(full):
     """dt = 1e-2 s: the advective CFL max |v| dt / h reaches 2.9 (at the seed's step 0.33); walls
-    stop displacements that would cross them. The energy error of the big step shows (3 % of
-    the start regained in the sloshing; 13 % with the start configuration's divergence) but stays
-    bounded, and the volume holds."""
+    stop displacements that would cross them. The energy error of the big step shows (3–6 % of
+    the start regained in the sloshing, at one splash, which round-off moves; 13 % with the start
+    configuration's divergence) but stays bounded, and the volume holds."""
     o = measured("dt-10x", full)
     # measured 1.875, 1.0, 0.0284 with G2P over the moved functions (2.040, 1.0, 0.0273 over all of them): the
     # fastest particle is a splash's, chaotic in the step: at 1/105 ... 1/90 s 1.93-2.04 and 0.025-0.033 (before
@@ -75,7 +75,11 @@ def test_dam_break_at_ten_times_the_seeds_step(full):
     # with the last step's pressure by parts (the scene's since 2026-11-30) the known pressure's share falls to zero
     # from a step Courant number of 2 (fempm.hydrostatic.LAST_PRESSURE_COURANT): taken whole, the energy grew at the
     # wall impact and the energy check stopped this run at 0.30 s; measured 1.980, 1.0, 0.0309
-    assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.037)
+    # with the compiled solve of small systems (fempm.small_system, 2026-11-30; the same solutions to 3e-13) 1.980, 1.0,
+    # 0.0560: the energy's largest rise is one splash's, and round-off moves it. At dt = 1/105, 1/100, 1/95, 1/90 s
+    # the compiled solve gives 0.0280 / 0.0560 / 0.0332 / 0.0353 (speeds 2.18 / 1.98 / 1.93 / 1.72), PETSc's split
+    # 0.0733 / 0.0309 / 0.0332 / 0.0353 (2.79 / 1.98 / 1.93 / 1.72): the bound of 0.037 held in one of those runs
+    assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.06)
     # measured 3.356 (with tau's T = max(dt, ...) 2.936 (crowding only 2.918; before the crowding tolerance 4.088; start-configuration divergence 3.197)
     assert o.max_cfl > 2.8
     # measured 1.140 (2 s) with the last step's pressure by parts and turning shifts (the scene's since 2026-11-30: the
@@ -281,7 +285,7 @@ def test_a_long_run_settles_with_its_volume(full):
         # test_dam_break_of_water)
         assert_sound(o, 800, speed_ratio=2.5, energy_max=1.0 + 0.009, energy_rise=0.008)
     else:  # the big step's energy error: the first 2 s are test_dam_break_at_ten_times_the_seeds_step's
-        assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.037)
+        assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.06)
     t, centroid = o.history["t"], np.asarray(o.history["centroid"])
     if full:  # the layer's surface after 40 s, at one instant of a layer still sloshing: 65.8 mm with the last step's
         # pressure by parts and turning shifts (the scene's since 2026-11-30), 72.8 mm with the split, 74.4 mm before
