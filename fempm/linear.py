@@ -105,7 +105,7 @@ EXACT = {
     "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "lu",
 }
 #: Free dofs up to which a one-rank exact solve with the default options is fempm's compiled one
-#: (:mod:`fempm.small_system`: no pattern, set-up or split to keep), PETSc's split where it does not converge.
+#: (:mod:`fempm.small_system`: no pattern, set-up or split to keep), PETSc's split where it declines.
 COMPILED_SYSTEM = 1500
 #: Free dofs above which S's LU is MUMPS's rather than PETSc's own.
 SMALL_SYSTEM = 1500
@@ -245,7 +245,7 @@ class LinearSolver:
         self.compiles_small = (self.exact_schur and self.options == EXACT
                                and not any(name.startswith(prefix) for name in opts.getAll()))
         self.compiled = 0  # solves by the compiled solve
-        self.compiled_declined = 0  # systems it did not solve (a zero pivot, no convergence) and the split did
+        self.compiled_declined = 0  # systems it declined (a block far from diagonal, a zero pivot, no gain) for the split
         self.fallbacks = 0  # solves the exact Schur iteration failed and MUMPS LU redid
         # one rank, a velocity and a pressure: the blocks and S cut from a grid matrix (fempm.schur)
         self.cuts_blocks = self.selfp and comm.size == 1 and list(self.fields.values()) == [2, 1]
