@@ -22,8 +22,8 @@ them. Two sets of options are named here:
   iteration stops at :data:`MULTIGRID_RTOL` (1e-10, a hundredth of Newton's tolerance), not at
   round-off (:func:`schur_rtol`; a ``ksp_rtol`` other than :data:`EXACT_RTOL` among the options holds
   at every size). Should the iteration fail, the system is solved again by MUMPS LU (:data:`DIRECT`).
-  With these options as they are, a system of up to :data:`COMPILED_SYSTEM` free dofs (where S's LU would be
-  PETSc's) is solved by fempm's compiled solve instead (:mod:`fempm.small_system`: the same factorisation
+  With these options as they are, a system of up to :data:`COMPILED_SYSTEM` free dofs (where S would be
+  factored by LU) is solved by fempm's compiled solve instead (:mod:`fempm.small_system`: the same factorisation
   iterated, S's LU in RCM order, with no split, blocks or pattern to set up), by the split where it declines;
 * :data:`DIRECT`: LU of the whole system by MUMPS (on several ranks sequential MUMPS on every
   rank, see :func:`direct_options`);
@@ -105,8 +105,9 @@ EXACT = {
     "fieldsplit_p_ksp_type": "preonly", "fieldsplit_p_pc_type": "lu",
 }
 #: Free dofs up to which a one-rank exact solve with the default options is fempm's compiled one
-#: (:mod:`fempm.small_system`: no pattern, set-up or split to keep), PETSc's split where it declines.
-COMPILED_SYSTEM = 1500
+#: (:mod:`fempm.small_system`: no pattern, set-up or split to keep), PETSc's split where it declines; below
+#: :data:`LARGE_SYSTEM` too, where S's LU fills in less than a multigrid cycle costs.
+COMPILED_SYSTEM = 4000
 #: Free dofs above which S's LU is MUMPS's rather than PETSc's own.
 SMALL_SYSTEM = 1500
 #: Free dofs above which S is solved by a multigrid cycle rather than LU.
@@ -140,10 +141,9 @@ def schur_factor_options(free_dofs: int) -> dict:
 
 
 def _compiled_size(free_dofs: int) -> bool:
-    """Whether a system of ``free_dofs`` is the compiled solve's: up to :data:`COMPILED_SYSTEM`, and where the split
-    would factor S by PETSc's own LU (:func:`schur_factor_options`)."""
-    return (free_dofs <= COMPILED_SYSTEM
-            and schur_factor_options(free_dofs).get("fieldsplit_p_pc_factor_mat_solver_type") == "petsc")
+    """Whether a system of ``free_dofs`` is the compiled solve's: up to :data:`COMPILED_SYSTEM`, where the split
+    would factor S by LU (:func:`schur_factor_options`)."""
+    return free_dofs <= min(COMPILED_SYSTEM, LARGE_SYSTEM)
 
 
 def schur_rtol(free_dofs: int) -> float:

@@ -103,7 +103,8 @@ def test_schur_factor_follows_the_size(monkeypatch):
     comm = MPI.COMM_SELF
     assert linear.schur_factor_options(linear.SMALL_SYSTEM)["fieldsplit_p_pc_factor_mat_solver_type"] == "petsc"
     assert linear.schur_factor_options(linear.SMALL_SYSTEM + 1)["fieldsplit_p_pc_factor_mat_solver_type"] == "mumps"
-    small, _ = _one_step(comm)  # the compiled solve (fempm.small_system) where the split would take PETSc's LU
+    small, _ = _one_step(comm)  # the compiled solve (fempm.small_system)
+    monkeypatch.setattr(linear, "COMPILED_SYSTEM", 0)  # the split, and its choice of S's LU by size
     monkeypatch.setattr(linear, "SMALL_SYSTEM", 0)
     large, solver = _one_step(comm)
     schur = solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC()

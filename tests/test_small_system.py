@@ -8,6 +8,7 @@ import numpy as np
 from mpi4py import MPI
 
 from fempm import linear, small_system
+from fempm.cases import dambreak
 from fempm.scene import load_scene
 from fempm.simulation import build_solver
 
@@ -51,6 +52,23 @@ def test_the_dam_breaks_systems_are_solved_to_round_off(monkeypatch):
     # measured 2.6e-13: both stop at round-off, this one at a residual of 1e-13 |b| (linear.EXACT_RTOL)
     assert np.linalg.norm(x - lu) <= 1e-12 * np.linalg.norm(lu)
     assert np.all(x[np.setdiff1d(np.arange(len(x)), free)] == 0.0)
+
+
+def test_a_finer_grids_systems_are_solved_to_round_off(monkeypatch):
+    """On 60² cells (some 1,600 free dofs at the start, where the split factors S by MUMPS) the compiled solve takes
+    every system too, and equals MUMPS LU of the free block."""
+    calls = _recording(monkeypatch)
+    solver = build_solver(dambreak.scene({"domain.cells": [60, 60]}, files=False), MPI.COMM_SELF)
+    for _ in range(3):
+        solver.step()
+    assert solver.system.linear_solver.compiled == len(calls) == 4  # a_0's solve and three steps
+    grid_matrix, free, b, _ = calls[-1]
+    assert len(free) > linear.SMALL_SYSTEM  # measured 1,585
+    assert max(status for *_, status in calls) <= 5  # measured 4 (the first steps' 10 ms)
+    x = np.empty_like(b)
+    small_system.solve(grid_matrix, free, b, linear.EXACT_RTOL, x)
+    lu = _lu(grid_matrix, free, b)
+    assert np.linalg.norm(x - lu) <= 1e-12 * np.linalg.norm(lu)  # measured 5.0e-15
 
 
 def test_a_viscous_flows_systems_are_left_to_the_split(monkeypatch):
