@@ -161,20 +161,27 @@ def _band(pointer, cols, vals, order):
 @numba.njit(cache=True)
 def _band_lu(band, lower, last):
     """LU without pivoting in place (unit L below the diagonal); a row's upper part is taken only up to
-    its ``last`` column, which the elimination widens as fill reaches further. False at a zero pivot."""
+    its ``last`` column, which the elimination widens as fill reaches further. False at a zero pivot.
+    The pivot row's upper part is copied out first, so that the row updates read one array and write
+    another (the compiler then vectorises them)."""
     n = band.shape[0]
+    pivot_row = np.empty(band.shape[1])
     for k in range(n):
         pivot = band[k, lower]
         if pivot == 0.0 or not np.isfinite(pivot):
             return False
+        length = last[k] - k
+        for j in range(length):
+            pivot_row[j] = band[k, lower + 1 + j]
         for i in range(k + 1, min(n, k + lower + 1)):
             l = band[i, k - i + lower]
             if l == 0.0:
                 continue
             l /= pivot
             band[i, k - i + lower] = l
-            for j in range(k + 1, last[k] + 1):
-                band[i, j - i + lower] -= l * band[k, j - k + lower]
+            row, start = band[i], k + 1 - i + lower
+            for j in range(length):
+                row[start + j] -= l * pivot_row[j]
             last[i] = max(last[i], last[k])
     return True
 
@@ -197,14 +204,41 @@ def _band_solve(band, lower, last, y):
 
 @numba.njit(cache=True)
 def _products(indptr, columns, values, bs, rows, first, count, x, out):
-    """``out[i]`` = row ``rows[i]`` times ``x`` over its columns of components ``first .. first + count - 1``."""
-    for i in range(rows.shape[0]):
+    """``out[i]`` = row ``rows[i]`` times ``x`` over its columns of components ``first .. first + count - 1``.
+    ``rows`` in increasing order: the rows of one function (the same columns) are summed side by side, each
+    in its own order, so that the sums' chains of additions overlap."""
+    i = 0
+    while i < rows.shape[0]:
         r = rows[i]
-        s = 0.0
-        for k in range(indptr[r], indptr[r + 1], bs):
-            for D in range(first, first + count):
-                s += values[k + D] * x[columns[k + D]]
-        out[i] = s
+        together = 1
+        while together < min(bs, 3) and i + together < rows.shape[0] and rows[i + together] // bs == r // bs:
+            together += 1
+        if together == 1:
+            s = 0.0
+            for k in range(indptr[r], indptr[r + 1], bs):
+                for D in range(first, first + count):
+                    s += values[k + D] * x[columns[k + D]]
+            out[i] = s
+        elif together == 2:
+            o1 = indptr[rows[i + 1]] - indptr[r]
+            s0 = s1 = 0.0
+            for k in range(indptr[r], indptr[r + 1], bs):
+                for D in range(first, first + count):
+                    xk = x[columns[k + D]]
+                    s0 += values[k + D] * xk
+                    s1 += values[k + o1 + D] * xk
+            out[i], out[i + 1] = s0, s1
+        else:
+            o1, o2 = indptr[rows[i + 1]] - indptr[r], indptr[rows[i + 2]] - indptr[r]
+            s0 = s1 = s2 = 0.0
+            for k in range(indptr[r], indptr[r + 1], bs):
+                for D in range(first, first + count):
+                    xk = x[columns[k + D]]
+                    s0 += values[k + D] * xk
+                    s1 += values[k + o1 + D] * xk
+                    s2 += values[k + o2 + D] * xk
+            out[i], out[i + 1], out[i + 2] = s0, s1, s2
+        i += together
 
 
 @numba.njit(cache=True)
