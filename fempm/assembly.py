@@ -220,13 +220,14 @@ def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
 
 @numba.njit(cache=True)
 def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun, coeffs, columns, consts, perm, h,
-                    vector=None):
+                    vector=None, alongside=None):
     """Add the particle-quadrature matrix of a bilinear form into CSR ``values``; the kernel's
     coefficients of particle ``p`` are ``coeffs[p, columns]``.
 
     ``vector``: None, or ``(kernel, out, consts, perm)`` of a linear form whose kernel reads
     ``coeffs[p]`` whole (the residual whose Jacobian this is), added into ``out`` in the same pass
-    as :func:`assemble_vector` would. First-order jets go through :func:`_add_particle_first_order`,
+    as :func:`assemble_vector` would. ``alongside``: None, or ``(kernel, out, consts, perm, columns)`` of
+    one more linear form, whose kernel reads ``coeffs[p, columns]``, likewise. First-order jets go through :func:`_add_particle_first_order`,
     others through :func:`_add_particle_pattern` over the pattern of the kernel's non-zero entries, grown
     at a particle whose kernel has one outside it (second-order jets: most kernel rows are zero, the
     second derivatives entering through a few terms). The element matrix's rows are padded to a
@@ -251,6 +252,8 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     n_t = n_a = 0
     if vector is not None:
         Kv = np.zeros(vector[3].size)
+    if alongside is not None:
+        Ka, wa = np.zeros(alongside[3].size), np.zeros(max(alongside[4].shape[0], 1))
     cur = -1
     for p in range(n + 1):
         c = cell[p] if p < n else -1
@@ -266,6 +269,12 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
             Kv[:] = 0.0
             vector[0](Kv.ctypes.data, coeffs[p].ctypes.data, vector[2].ctypes.data, coords.ctypes.data, 0, 0, 0)
             _add_vector_particle(Kv, weight[p], phi[p], lfun[p], vector[3], vector[1])
+        if alongside is not None:
+            for i in range(alongside[4].shape[0]):
+                wa[i] = coeffs[p, alongside[4][i]]
+            Ka[:] = 0.0
+            alongside[0](Ka.ctypes.data, wa.ctypes.data, alongside[2].ctypes.data, coords.ctypes.data, 0, 0, 0)
+            _add_vector_particle(Ka, weight[p], phi[p], lfun[p], alongside[3], alongside[1])
         for i in range(columns.shape[0]):
             w[i] = coeffs[p, columns[i]]
         K[:] = 0.0

@@ -559,7 +559,7 @@ class ParticleForm:
                                  consts, self._perm, self.space.grid.h)
 
     def assemble_with(self, residual: ParticleForm, particles, A: PETSc.Mat | None = None,
-                      b: dolfinx.la.Vector | None = None) -> tuple[PETSc.Mat, dolfinx.la.Vector]:
+                      b: dolfinx.la.Vector | None = None, alongside=None) -> tuple[PETSc.Mat, dolfinx.la.Vector]:
         """This bilinear form's matrix and the vector of ``residual``, a linear form whose coefficients
         include this one's (the residual this form is the Jacobian of), in one pass over the particles.
 
@@ -567,9 +567,14 @@ class ParticleForm:
         and a lumped part takes the residual's nodal sums. Two passes (:meth:`assemble_vector`, then
         :meth:`assemble_matrix`) where that cannot be: another space or jet order, a coefficient or
         a regular integral one of them lacks, or a lumped part not affine in the particle fields.
+
+        ``alongside``: None, or ``(form, vector)``, a linear form that :meth:`joins` ``residual``'s pass,
+        assembled into ``vector`` in it as well.
         """
         self._require_rank(2)
         columns = self._columns_in(residual)
+        if alongside is not None and not (columns is not None and alongside[0].joins(residual)):
+            raise ValueError("the form alongside cannot be assembled in the residual's pass")
         if columns is None:
             b = residual.assemble_vector(particles, b)
             return self.assemble_matrix(particles, A), b
@@ -583,13 +588,27 @@ class ParticleForm:
         phi, lfun, weight, coeffs, consts_r = residual._particle_data(particles)
         consts = self._constants_now()
         vector = (residual._kernels[_REGULAR], b.array, consts_r, residual._perm)
-        self._regular_matrix(target, particles, phi, lfun, weight, coeffs, columns, consts, vector)
+        extra = None
+        if alongside is not None:
+            form, out = alongside
+            out.array[:] = 0.0
+            extra = (form._kernels[_REGULAR], out.array, form._constants_now(), form._perm, form._columns_in(residual))
+        self._regular_matrix(target, particles, phi, lfun, weight, coeffs, columns, consts, vector, alongside=extra)
+        if alongside is not None:
+            alongside[1].scatter_reverse(dolfinx.la.InsertMode.add)
         sums = residual._lumped_vector(b, particles, lfun, weight, coeffs, consts_r)
         slots = columns[self._packing.particle_slots()]
         shared = sums is not None and np.array_equal(slots, residual._packing.particle_slots())
         self._lumped_matrix(target, particles, lfun, weight, coeffs, slots, consts, sums if shared else None)
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return target.finalize(), b
+
+    def joins(self, residual: ParticleForm) -> bool:
+        """Whether this linear form can be assembled in ``residual``'s pass (:meth:`assemble_with`'s
+        ``alongside``): a regular integral alone, the residual's space and jets, its coefficients among the
+        residual's, and no fixed points in that pass."""
+        return (self.rank == 1 and set(self._kernels) == {_REGULAR} and _FIXED not in residual._kernels
+                and self._columns_in(residual) is not None)
 
     def _constants_now(self) -> np.ndarray:
         """The constants' current values side by side in the kernel's order (:func:`_constant_array`),
@@ -649,13 +668,13 @@ class ParticleForm:
         return b
 
     def _regular_matrix(self, target, particles, phi, lfun, weight, coeffs, columns, consts, vector=None,
-                        kind=_REGULAR):
-        """The ``dx`` part of the matrix (and of ``vector``'s form, see :func:`fempm.assembly.assemble_matrix`;
-        ``kind`` = ``_FIXED``: the ``dx_fixed`` parts, at the fixed points)."""
+                        kind=_REGULAR, alongside=None):
+        """The ``dx`` part of the matrix (and of ``vector``'s and ``alongside``'s forms, see
+        :func:`fempm.assembly.assemble_matrix`; ``kind`` = ``_FIXED``: the ``dx_fixed`` parts, at the fixed points)."""
         lay = target.layout
         assembly.assemble_matrix(
             self._kernels[kind], target.values, lay.indptr, lay.stencil, particles.x, particles.cell,
-            weight, phi, lfun, coeffs, columns, consts, self._perm, self.space.grid.h, vector,
+            weight, phi, lfun, coeffs, columns, consts, self._perm, self.space.grid.h, vector, alongside,
         )
         target.mark_written(lfun)
 

@@ -78,11 +78,23 @@ class StepForms:
         held wall dof holds beyond the walls' force on the water (``forms/incompressible.py``)."""
         return None if self._wall_force_excess is None else self._wall_force_excess()
 
-    def assemble(self, particles, J=None, R=None):
+    @functools.cached_property
+    def excess_in_pass(self) -> bool:
+        """Whether :attr:`wall_force_excess` can be assembled in the residual's pass: a particle form free of U
+        (with the pressure's work split it reads the known pressure) that joins the residual's pass."""
+        excess = self.wall_force_excess
+        if not isinstance(excess, ParticleForm) or not isinstance(self.jacobian, ParticleForm):
+            return False
+        unknown = next((c for c, (kind, name) in excess.symbols.used.items() if name == "U"), None)
+        return unknown not in excess.expanded_form.coefficients() and excess.joins(self.residual)
+
+    def assemble(self, particles, J=None, R=None, excess=None):
         """The Jacobian and the residual (into ``J`` and ``R`` if given), in one pass over the particles
-        for particle forms (:meth:`fempm.quadrature.ParticleForm.assemble_with`)."""
+        for particle forms (:meth:`fempm.quadrature.ParticleForm.assemble_with`); with an ``excess`` vector
+        (where :attr:`excess_in_pass`) the wall force excess into it in the same pass."""
         if isinstance(self.jacobian, ParticleForm):
-            return self.jacobian.assemble_with(self.residual, particles, J, R)
+            alongside = None if excess is None else (self.wall_force_excess, excess)
+            return self.jacobian.assemble_with(self.residual, particles, J, R, alongside)
         R = self.residual.assemble_vector(particles, R)
         return self.jacobian.assemble_matrix(particles, J), R
 
@@ -141,6 +153,7 @@ class GridSystem:
         self._R = self.space.create_vector()
         self._rows_marked = GridFunction(self.scalar_space, "reaction_rows")  # see _adding_to
         self._delta, self._delta_of = None, None
+        self._excess, self._excess_assembled = None, False  # the wall force excess of the solve's pass
 
     @property
     def dt(self) -> float:
@@ -173,10 +186,13 @@ class GridSystem:
         U.array[self.walls.positions] = self.dt * self.walls.values
         U.scatter_forward()
         r0 = norm = None
+        self._excess_assembled = False
         for iteration in range(c.newton_max_it):
             with self.timings("assemble"):
                 if forms.linear:  # one iteration: no norm to check first
-                    J, R = forms.assemble(particles, J, self._R)
+                    excess = self._excess_vector(forms)
+                    J, R = forms.assemble(particles, J, self._R, excess)
+                    self._excess_assembled = excess is not None
                 else:
                     R = forms.residual.assemble_vector(particles, self._R)
                     norm = self._free_norm(R)
@@ -207,7 +223,12 @@ class GridSystem:
         solve's own vectors, else assembled again."""
         rows = np.arange(self.space.num_owned_dofs) if rows is None else np.asarray(rows, dtype=np.int64)
         excess = forms.wall_force_excess if self.constants["by_parts"] or self.constants["split"] else None
-        excess = 0.0 if excess is None else excess.assemble_vector(self._adding_to(rows, particles)).array[rows]
+        if excess is None:
+            excess = 0.0
+        elif self._excess_assembled:
+            excess = self._excess.array[rows]
+        else:
+            excess = excess.assemble_vector(self._adding_to(rows, particles)).array[rows]
         if not forms.linear:
             return forms.residual.assemble_vector(particles, self._R).array[rows] - excess
         # the solve scaled R(U_0) by -1; delta = U - U_0
@@ -218,6 +239,16 @@ class GridSystem:
             self._delta_of.mult(self._delta, whole)
             product = whole.getArray(readonly=True)[rows]
         return product - self._R.array[rows] - excess
+
+    def _excess_vector(self, forms: StepForms):
+        """Where the solve's pass assembles the wall force excess that :meth:`reaction` subtracts (one-sided walls,
+        the pressure's work by parts or split, an excess free of U: :attr:`StepForms.excess_in_pass`), else None."""
+        if not (self.walls.one_sided and (self.constants["by_parts"] or self.constants["split"])
+                and forms.excess_in_pass):
+            return None
+        if self._excess is None:
+            self._excess = self.space.create_vector()
+        return self._excess
 
     def _adding_to(self, rows: np.ndarray, particles):
         """The particles whose basis functions include one of the owned dofs ``rows``: those that add to these rows

@@ -183,3 +183,28 @@ def test_the_walls_excess_from_the_particles_near_them_is_the_whole_ones(work):
     assert comm.allreduce(len(near)) < 0.35 * solver.particles.global_count()  # measured: 229 and 227 of 800
     assert comm.allreduce(int(np.count_nonzero(whole)), op=MPI.SUM) > 0
     assert comm.allreduce(bool(np.array_equal(part, whole)), op=MPI.LAND)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("work", ["increment", "split", "by-parts"])
+def test_the_walls_excess_in_the_steps_pass_is_its_own_assembly(work):
+    """With the pressure's work split (the known pressure: ``increment``, ``split``) the walls' excess is free of U
+    and is assembled in the step's one pass over the particles (``StepForms.excess_in_pass``): the same numbers, to
+    the bit, as its own assembly, on one rank and on two. By parts it reads the solved pressure: assembled after."""
+    solver = build_solver(dambreak.scene({"solver.pressure_work": work}, files=False), MPI.COMM_WORLD)
+    for _ in range(60):
+        solver.step()
+    forms, particles, system = solver.forms, solver.particles, solver.system
+    assert forms.excess_in_pass == (work != "by-parts")
+    assert system._excess_assembled == (work != "by-parts")  # the last step's solve took it from its pass
+    if work == "by-parts":
+        return
+    system.space.tabulate_particles(particles, solver._jet_order)  # a step's P2G, as ImplicitSolver.advance
+    solver.project()
+    excess = system.space.create_vector()
+    forms.assemble(particles, solver.region.matrix, None, excess)
+    own = forms.wall_force_excess.assemble_vector(particles).array
+    owned = system.space.num_owned_dofs
+    comm = solver.grid.comm
+    assert comm.allreduce(int(np.count_nonzero(own[:owned]))) > 0
+    assert comm.allreduce(bool(np.array_equal(excess.array[:owned], own[:owned])), op=MPI.LAND)
