@@ -226,8 +226,8 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
 
     ``vector``: None, or ``(kernel, out, consts, perm)`` of a linear form whose kernel reads
     ``coeffs[p]`` whole (the residual whose Jacobian this is), added into ``out`` in the same pass
-    as :func:`assemble_vector` would. ``alongside``: None, or ``(kernel, out, consts, perm, columns)`` of
-    one more linear form, whose kernel reads ``coeffs[p, columns]``, likewise. First-order jets go through :func:`_add_particle_first_order`,
+    as :func:`assemble_vector` would. ``alongside``: None, or ``(kernel, out, consts, perm, columns, where)`` of
+    one more linear form, whose kernel reads ``coeffs[p, columns]``, likewise at the particles ``where`` is true. First-order jets go through :func:`_add_particle_first_order`,
     others through :func:`_add_particle_pattern` over the pattern of the kernel's non-zero entries, grown
     at a particle whose kernel has one outside it (second-order jets: most kernel rows are zero, the
     second derivatives entering through a few terms). The element matrix's rows are padded to a
@@ -269,7 +269,7 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
             Kv[:] = 0.0
             vector[0](Kv.ctypes.data, coeffs[p].ctypes.data, vector[2].ctypes.data, coords.ctypes.data, 0, 0, 0)
             _add_vector_particle(Kv, weight[p], phi[p], lfun[p], vector[3], vector[1])
-        if alongside is not None:
+        if alongside is not None and alongside[5][p]:
             for i in range(alongside[4].shape[0]):
                 wa[i] = coeffs[p, alongside[4][i]]
             Ka[:] = 0.0

@@ -568,8 +568,8 @@ class ParticleForm:
         :meth:`assemble_matrix`) where that cannot be: another space or jet order, a coefficient or
         a regular integral one of them lacks, or a lumped part not affine in the particle fields.
 
-        ``alongside``: None, or ``(form, vector)``, a linear form that :meth:`joins` ``residual``'s pass,
-        assembled into ``vector`` in it as well.
+        ``alongside``: None, or ``(form, vector, where)``, a linear form that :meth:`joins` ``residual``'s pass,
+        assembled into ``vector`` in it as well, over the particles ``where`` (a boolean mask) is true.
         """
         self._require_rank(2)
         columns = self._columns_in(residual)
@@ -590,9 +590,10 @@ class ParticleForm:
         vector = (residual._kernels[_REGULAR], b.array, consts_r, residual._perm)
         extra = None
         if alongside is not None:
-            form, out = alongside
+            form, out, where = alongside
             out.array[:] = 0.0
-            extra = (form._kernels[_REGULAR], out.array, form._constants_now(), form._perm, form._columns_in(residual))
+            extra = (form._kernels[_REGULAR], out.array, form._constants_now(), form._perm, form._columns_in(residual),
+                     where)
         self._regular_matrix(target, particles, phi, lfun, weight, coeffs, columns, consts, vector, alongside=extra)
         if alongside is not None:
             alongside[1].scatter_reverse(dolfinx.la.InsertMode.add)

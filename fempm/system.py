@@ -43,16 +43,14 @@ def _end_state(du, v, a, dt, beta, gamma, v_new, a_new):
 
 @numba.njit(cache=True)
 def _touching(marks, functions):
-    """The particles (rows of ``functions``, their local functions) with a function whose ``marks`` is not zero."""
-    out = np.empty(functions.shape[0], dtype=np.int64)
-    count = 0
+    """Which particles (rows of ``functions``, their local functions) have a function whose ``marks`` is not zero."""
+    out = np.zeros(functions.shape[0], dtype=np.bool_)
     for p in range(functions.shape[0]):
         for f in functions[p]:
             if marks[f] != 0.0:
-                out[count] = p
-                count += 1
+                out[p] = True
                 break
-    return out[:count]
+    return out
 
 
 class StepForms:
@@ -90,10 +88,10 @@ class StepForms:
 
     def assemble(self, particles, J=None, R=None, excess=None):
         """The Jacobian and the residual (into ``J`` and ``R`` if given), in one pass over the particles
-        for particle forms (:meth:`fempm.quadrature.ParticleForm.assemble_with`); with an ``excess`` vector
-        (where :attr:`excess_in_pass`) the wall force excess into it in the same pass."""
+        for particle forms (:meth:`fempm.quadrature.ParticleForm.assemble_with`); with ``excess``, a vector and a
+        mask of the particles (where :attr:`excess_in_pass`), the wall force excess over those into it in the same pass."""
         if isinstance(self.jacobian, ParticleForm):
-            alongside = None if excess is None else (self.wall_force_excess, excess)
+            alongside = None if excess is None else (self.wall_force_excess, *excess)
             return self.jacobian.assemble_with(self.residual, particles, J, R, alongside)
         R = self.residual.assemble_vector(particles, R)
         return self.jacobian.assemble_matrix(particles, J), R
@@ -190,7 +188,7 @@ class GridSystem:
         for iteration in range(c.newton_max_it):
             with self.timings("assemble"):
                 if forms.linear:  # one iteration: no norm to check first
-                    excess = self._excess_vector(forms)
+                    excess = self._excess_in_pass(forms, particles)
                     J, R = forms.assemble(particles, J, self._R, excess)
                     self._excess_assembled = excess is not None
                 else:
@@ -225,7 +223,7 @@ class GridSystem:
         excess = forms.wall_force_excess if self.constants["by_parts"] or self.constants["split"] else None
         if excess is None:
             excess = 0.0
-        elif self._excess_assembled:
+        elif self._excess_assembled and np.array_equal(rows, self.walls.normal):
             excess = self._excess.array[rows]
         else:
             excess = excess.assemble_vector(self._adding_to(rows, particles)).array[rows]
@@ -240,27 +238,32 @@ class GridSystem:
             product = whole.getArray(readonly=True)[rows]
         return product - self._R.array[rows] - excess
 
-    def _excess_vector(self, forms: StepForms):
-        """Where the solve's pass assembles the wall force excess that :meth:`reaction` subtracts (one-sided walls,
-        the pressure's work by parts or split, an excess free of U: :attr:`StepForms.excess_in_pass`), else None."""
+    def _excess_in_pass(self, forms: StepForms, particles):
+        """Where the solve's pass assembles the wall force excess that :meth:`reaction` subtracts at the contact
+        dofs, and over which particles: those that add to them (one-sided walls, the pressure's work by parts or
+        split, an excess free of U: :attr:`StepForms.excess_in_pass`); else None."""
         if not (self.walls.one_sided and (self.constants["by_parts"] or self.constants["split"])
                 and forms.excess_in_pass):
             return None
         if self._excess is None:
             self._excess = self.space.create_vector()
-        return self._excess
+        return self._excess, self._touching_rows(self.walls.normal, particles)
+
+    def _touching_rows(self, rows: np.ndarray, particles) -> np.ndarray:
+        """Which particles have a basis function among those of the owned dofs ``rows`` (collective)."""
+        marked = self._rows_marked
+        marked.values[:] = 0.0
+        marked.values[rows // self.space.bs, 0] = 1.0
+        marked.scatter_forward()  # a rank's particles add to the ghosts of other ranks' rows
+        _, functions = self.scalar_space.tabulate_particles(particles, 0, exact=False)
+        return _touching(marked.values[:, 0], functions)
 
     def _adding_to(self, rows: np.ndarray, particles):
         """The particles whose basis functions include one of the owned dofs ``rows``: those that add to these rows
         of a vector (a :class:`~fempm.particles.ParticleSubset`; a step's Gauss points are taken whole; collective)."""
         if getattr(particles, "fixed", None) is not None:
             return particles
-        marked = self._rows_marked
-        marked.values[:] = 0.0
-        marked.values[rows // self.space.bs, 0] = 1.0
-        marked.scatter_forward()  # a rank's particles add to the ghosts of other ranks' rows
-        _, functions = self.scalar_space.tabulate_particles(particles, 0, exact=False)
-        return ParticleSubset(particles, _touching(marked.values[:, 0], functions))
+        return ParticleSubset(particles, np.flatnonzero(self._touching_rows(rows, particles)))
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]
