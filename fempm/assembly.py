@@ -227,8 +227,8 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     ``vector``: None, or ``(kernel, out, consts, perm)`` of a linear form whose kernel reads
     ``coeffs[p]`` whole (the residual whose Jacobian this is), added into ``out`` in the same pass
     as :func:`assemble_vector` would. ``alongside``: None, or ``(kernel, out, consts, perm, columns, where)`` of
-    one more linear form, whose kernel reads ``coeffs[p, columns]``, likewise at the particles ``where`` is true. First-order jets go through :func:`_add_particle_first_order`,
-    others through :func:`_add_particle_pattern` over the pattern of the kernel's non-zero entries, grown
+    one more linear form, whose kernel reads ``coeffs[p, columns]``, likewise at the particles ``where`` is true.
+    First-order jets go through :func:`_add_particle_first_order`, others through :func:`_add_particle_pattern` over the pattern of the kernel's non-zero entries, grown
     at a particle whose kernel has one outside it (second-order jets: most kernel rows are zero, the
     second derivatives entering through a few terms). The element matrix's rows are padded to a
     multiple of 4 entries: the vectorised inner loops then have no scalar remainder."""

@@ -205,31 +205,13 @@ def _band_solve(band, lower, last, y):
 @numba.njit(cache=True)
 def _products(indptr, columns, values, bs, rows, first, count, x, out):
     """``out[i]`` = row ``rows[i]`` times ``x`` over its columns of components ``first .. first + count - 1``.
-    ``rows`` in increasing order: the rows of one function (the same columns) are summed side by side, each
-    in its own order, so that the sums' chains of additions overlap."""
+    ``rows`` in increasing order: where all three rows of a function (the same columns) are there, they are summed
+    side by side, each in its own order, so that the sums' chains of additions overlap."""
     i = 0
     while i < rows.shape[0]:
         r = rows[i]
-        together = 1
-        while together < min(bs, 3) and i + together < rows.shape[0] and rows[i + together] // bs == r // bs:
-            together += 1
-        if together == 1:
-            s = 0.0
-            for k in range(indptr[r], indptr[r + 1], bs):
-                for D in range(first, first + count):
-                    s += values[k + D] * x[columns[k + D]]
-            out[i] = s
-        elif together == 2:
-            o1 = indptr[rows[i + 1]] - indptr[r]
-            s0 = s1 = 0.0
-            for k in range(indptr[r], indptr[r + 1], bs):
-                for D in range(first, first + count):
-                    xk = x[columns[k + D]]
-                    s0 += values[k + D] * xk
-                    s1 += values[k + o1 + D] * xk
-            out[i], out[i + 1] = s0, s1
-        else:
-            o1, o2 = indptr[rows[i + 1]] - indptr[r], indptr[rows[i + 2]] - indptr[r]
+        if bs == 3 and i + 2 < rows.shape[0] and rows[i + 2] == r + 2 and r % 3 == 0:
+            o1, o2 = indptr[r + 1] - indptr[r], indptr[r + 2] - indptr[r]
             s0 = s1 = s2 = 0.0
             for k in range(indptr[r], indptr[r + 1], bs):
                 for D in range(first, first + count):
@@ -238,7 +220,14 @@ def _products(indptr, columns, values, bs, rows, first, count, x, out):
                     s1 += values[k + o1 + D] * xk
                     s2 += values[k + o2 + D] * xk
             out[i], out[i + 1], out[i + 2] = s0, s1, s2
-        i += together
+            i += 3
+            continue
+        s = 0.0
+        for k in range(indptr[r], indptr[r + 1], bs):
+            for D in range(first, first + count):
+                s += values[k + D] * x[columns[k + D]]
+        out[i] = s
+        i += 1
 
 
 @numba.njit(cache=True)

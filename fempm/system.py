@@ -188,7 +188,7 @@ class GridSystem:
         for iteration in range(c.newton_max_it):
             with self.timings("assemble"):
                 if forms.linear:  # one iteration: no norm to check first
-                    excess = self._excess_in_pass(forms, particles)
+                    excess = self._excess_alongside(forms, particles)
                     J, R = forms.assemble(particles, J, self._R, excess)
                     self._excess_assembled = excess is not None
                 else:
@@ -238,7 +238,7 @@ class GridSystem:
             product = whole.getArray(readonly=True)[rows]
         return product - self._R.array[rows] - excess
 
-    def _excess_in_pass(self, forms: StepForms, particles):
+    def _excess_alongside(self, forms: StepForms, particles):
         """Where the solve's pass assembles the wall force excess that :meth:`reaction` subtracts at the contact
         dofs, and over which particles: those that add to them (one-sided walls, the pressure's work by parts or
         split, an excess free of U: :attr:`StepForms.excess_in_pass`); else None."""

@@ -202,7 +202,7 @@ def test_the_walls_excess_in_the_steps_pass_is_its_own_assembly(work):
         return
     system.space.tabulate_particles(particles, solver._jet_order)  # a step's P2G, as ImplicitSolver.advance
     solver.project()
-    excess, near = system._excess_in_pass(forms, particles)
+    excess, near = system._excess_alongside(forms, particles)
     forms.assemble(particles, solver.region.matrix, None, (excess, near))
     rows = solver.walls.normal
     own = forms.wall_force_excess.assemble_vector(particles).array[rows]
