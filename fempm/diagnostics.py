@@ -6,6 +6,8 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
+from fempm import collective
+
 __all__ = ["fastest", "front_position", "lowest_corner", "mechanical_energy", "occupied_cells", "pressure_range",
            "pressure_speed", "surface_height"]
 
@@ -26,14 +28,14 @@ def _largest_square(v):
 def fastest(particles) -> float:
     """The largest particle speed on all ranks (the root of the largest square: the same number)."""
     local = float(np.sqrt(_largest_square(particles["velocity"])))
-    return particles.grid.comm.allreduce(local, op=MPI.MAX)
+    return collective.largest(particles.grid.comm, local)
 
 
 def pressure_speed(particles) -> float:
     """``max sqrt(p / rho)`` over the particles of all ranks (0 where no pressure is positive): the speed at
     which the pressure's work at the particles changes as they move (see :class:`fempm.stepper.StepControl`)."""
     head = float((particles["pressure"] / particles["density"]).max(initial=0.0))
-    return float(np.sqrt(particles.grid.comm.allreduce(head, op=MPI.MAX)))
+    return float(np.sqrt(collective.largest(particles.grid.comm, head)))
 
 
 def lowest_corner(grid, gravity) -> np.ndarray:
@@ -49,10 +51,18 @@ def mechanical_energy(particles, gravity, datum) -> float:
 
     With ``datum`` the :func:`lowest_corner`, E >= 0; gravity and walls at rest can only
     take it away (viscosity, the scheme's dissipation)."""
-    v = particles["velocity"]
-    height = np.einsum("ij,j->i", particles.x - datum, np.asarray(gravity, dtype=float))
-    local = np.einsum("i,i->", particles["mass"], 0.5 * np.einsum("ij,ij->i", v, v) - height)
-    return particles.grid.comm.allreduce(float(local))
+    g, d = np.asarray(gravity, dtype=float), np.asarray(datum, dtype=float)
+    local = _energy(particles.x, particles["velocity"], particles["mass"], g[0], g[1], d[0], d[1])
+    return collective.total(particles.grid.comm, local)
+
+
+@numba.njit(cache=True)
+def _energy(x, v, m, gx, gy, x0, y0):
+    total = 0.0
+    for p in range(m.shape[0]):
+        height = (x[p, 0] - x0) * gx + (x[p, 1] - y0) * gy
+        total += m[p] * (0.5 * (v[p, 0] * v[p, 0] + v[p, 1] * v[p, 1]) - height)
+    return total
 
 
 def front_position(particles, axis: int = 0) -> float:

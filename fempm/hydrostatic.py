@@ -27,7 +27,6 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
-from fempm import transfer
 from fempm.space import GridFunction, Space
 
 __all__ = ["BELOW", "DRY", "FULL", "HydrostaticPressure", "LAST_PRESSURE_COURANT", "LastPressure"]
@@ -151,6 +150,28 @@ class LastPressure:
         (collective)."""
         low, high = LAST_PRESSURE_COURANT
         share = min(max((high - courant) / (high - low), 0.0), 1.0)
-        weighted = transfer.particles_to_grid(self.space, particles, particles["mass"] * particles["pressure"],
-                                              out=self._weighted).values[:, 0]
-        return share * np.divide(weighted, mass, out=np.zeros_like(weighted), where=mass > 0)
+        phi, lfun = self.space.tabulate_particles(particles, order=0, exact=False)
+        weighted = self._weighted
+        weighted.values[:] = 0.0
+        _scatter_products(phi, lfun, particles["mass"], particles["pressure"], weighted.values)
+        weighted.scatter_reverse_add()
+        weighted.scatter_forward()
+        out = np.empty(len(mass))
+        _shared_ratio(weighted.values, mass, share, out)
+        return out
+
+
+@numba.njit(cache=True)
+def _scatter_products(phi, lfun, a, b, out):
+    """``out[lfun[p, l], 0] += phi[p, 0, l] (a_p b_p)`` (P2G of a product of two particle fields)."""
+    for p in range(lfun.shape[0]):
+        ab = a[p] * b[p]
+        for l in range(lfun.shape[1]):
+            out[lfun[p, l], 0] += phi[p, 0, l] * ab
+
+
+@numba.njit(cache=True)
+def _shared_ratio(weighted, mass, share, out):
+    """``out_i = share weighted_i / m_i`` where ``m_i > 0``, else 0."""
+    for i in range(out.shape[0]):
+        out[i] = share * (weighted[i, 0] / mass[i]) if mass[i] > 0 else 0.0

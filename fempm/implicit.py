@@ -19,7 +19,7 @@ import numba
 import numpy as np
 from mpi4py import MPI
 
-from fempm import diagnostics, transfer
+from fempm import collective, diagnostics, transfer
 from fempm.bases import Basis
 from fempm.density import DeepWater
 from fempm.errors import InputError
@@ -172,7 +172,7 @@ class ImplicitSolver(Stepper):
         points = self.quadrature_points()
         reaction = self.solve(free, points)
         if reaction is not None:  # one-sided walls: the next step's held set (fempm.walls)
-            self.walls.update(reaction, self.system.U.vector.array, self._reference_density, dt)
+            self.walls.update(reaction, self.system.U.array, self._reference_density, dt)
         with self.timings("update"):
             self.update()
         with self.timings("relocate"):
@@ -188,7 +188,7 @@ class ImplicitSolver(Stepper):
             return None
         reaction = self.system.reaction(self.forms, points, self.walls.normal)
         for _ in range(WALL_RESOLVES):
-            if not self.walls.settle(reaction, self.system.U.vector.array, self._reference_density, self.system.dt):
+            if not self.walls.settle(reaction, self.system.U.array, self._reference_density, self.system.dt):
                 break
             for name, projected in self._projected.items():  # v_n and a_n as projected on the released dofs
                 self.system.fields[name].values[:] = projected
@@ -302,7 +302,7 @@ class ImplicitSolver(Stepper):
         if self._shifting:  # the particles spread evenly again (fempm.shifting)
             self._shifting(p, s.dt)
             p.fields["x"] = s.walls.keep_inside(p.x)
-        self.max_divergence = self.grid.comm.allreduce(float(np.abs(divergence).max(initial=0.0)), op=MPI.MAX)
+        self.max_divergence = collective.largest(self.grid.comm, np.abs(divergence).max(initial=0.0))
         self.check_pressure(p["pressure"], s.dt)
         if self.check_energy:
             self.check_energy(s.dt)

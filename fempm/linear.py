@@ -58,10 +58,9 @@ import difflib
 import re
 
 import numpy as np
-from mpi4py import MPI
 from petsc4py import PETSc
 
-from fempm import small_system
+from fempm import collective, small_system
 from fempm.errors import InputError
 from fempm.schur import PATTERN_MARGIN, FreeBlocks
 
@@ -302,8 +301,7 @@ class LinearSolver:
         previous = self._previous
         same = previous is not None and previous[0] is A and np.array_equal(previous[1], free) and not self._renew
         self._renew = False
-        if self.comm.size > 1:
-            same = self.comm.allreduce(same, op=MPI.LAND)
+        same = collective.all_ranks(self.comm, same)
         if same:  # the same block of the same matrix: its pattern, so the set-up's symbolic part, stays
             index_set, A_free = previous[2], previous[3]
             A.createSubMatrix(index_set, index_set, submat=A_free)
@@ -323,7 +321,7 @@ class LinearSolver:
         previous = self._previous
         same = previous is not None and previous[0] is A and np.array_equal(previous[1], free) and not self._renew
         self._renew = False
-        same = self.comm.allreduce(same, op=MPI.LAND)
+        same = collective.all_ranks(self.comm, same)
         if same:
             order, rows, nest = previous[2], previous[3], previous[4]
             for i, row in enumerate(rows):

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fempm import collective
 from fempm.errors import InputError, ParticleOutsideGridError
 from fempm.grid import Grid
 
@@ -433,7 +434,7 @@ def raise_if_any_gone(grid: Grid, x: np.ndarray, ids: np.ndarray, gone: np.ndarr
     """Raise :class:`ParticleOutsideGridError` on all ranks if any rank has a particle ``gone``,
     naming the first one and where it went."""
     comm = grid.comm
-    if comm.allreduce(int(gone.sum())) == 0:
+    if collective.total(comm, int(np.count_nonzero(gone))) == 0:
         return
     message = None
     if np.any(gone):

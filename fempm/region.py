@@ -12,6 +12,7 @@ import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
+from fempm import collective
 from fempm.matrix import GridMatrix, create_matrix
 from fempm.options import FLUID_REGION_CELLS
 from fempm.space import Space
@@ -52,7 +53,7 @@ class MatrixRegion:
         if self.cells is None:
             return False
         outside = bool(np.any(~self.cells[particles.cell]))
-        if not self.grid.comm.allreduce(outside, op=MPI.LOR):
+        if not collective.any_rank(self.grid.comm, outside):
             return False
         self.matrix = self._build(particles)
         self.rebuilds += 1

@@ -43,7 +43,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
-from mpi4py import MPI
+
+from fempm import collective
 
 __all__ = ["REST_SPEED", "ParticleShifting", "concentration_gradients", "kernel_at_spacing", "lattice_concentration", "spacing"]
 
@@ -265,13 +266,6 @@ def _with_neighbours(x: np.ndarray, volume: np.ndarray, reach: float, comm) -> t
     return np.concatenate(xs), np.concatenate(vs)
 
 
-def _summed_over_ranks(comm, local: np.ndarray) -> np.ndarray:
-    """``local`` (float64) summed over the ranks, in place: a buffer reduction, not a pickled one (which costs
-    as much as the shifts' own sums at a few hundred particles)."""
-    comm.Allreduce(MPI.IN_PLACE, local, op=MPI.SUM)
-    return local
-
-
 def spacing(particles) -> float:
     """The particles' spacing ``dp``: the square root of their median volume on all ranks."""
     volume = particles["volume"]
@@ -319,14 +313,14 @@ class ParticleShifting:
                                 grad, conc)
         movable = conc >= self.full
         v, mass = particles["velocity"], particles["mass"]
-        total = _summed_over_ranks(grid.comm, _shifts(v, grad, movable, dt, self.strength / dp, STIFFNESS / dp**2,
+        total = collective.summed(grid.comm, _shifts(v, grad, movable, dt, self.strength / dp, STIFFNESS / dp**2,
                                                       MAX_SHIFT * dp, self.rest_speed, mass, shifts))
         if total[0] == 0:
             return shifts
         mean, mean_velocity, turn = total[1:] / total[0], np.zeros(2), 0.0
         if self.keep_angular_momentum:
-            mean_velocity = _summed_over_ranks(grid.comm, np.einsum("i,ij->j", mass[movable], v[movable])) / total[0]
-            turning, spread = _summed_over_ranks(grid.comm, _turning(v, movable, mass, mean, mean_velocity, shifts))
+            mean_velocity = collective.summed(grid.comm, np.einsum("i,ij->j", mass[movable], v[movable])) / total[0]
+            turning, spread = collective.summed(grid.comm, _turning(v, movable, mass, mean, mean_velocity, shifts))
             turn = turning / spread if spread > 0 else 0.0
         _move(x, v, movable, mean, mean_velocity, turn, shifts)
         return shifts

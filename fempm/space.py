@@ -218,7 +218,13 @@ class GridFunction:
         self.name = name
         self.vector = space.create_vector()
         # the vector's storage never moves: one view, not a new one per access (DOLFINx makes one each time)
-        self._values = self.vector.array.reshape(-1, space.bs)
+        self._array = self.vector.array
+        self._values = self._array.reshape(-1, space.bs)
+
+    @property
+    def array(self) -> np.ndarray:
+        """View of the local coefficients as the vector holds them, dof by dof (``vector.array``)."""
+        return self._array
 
     @property
     def values(self) -> np.ndarray:

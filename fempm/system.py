@@ -15,7 +15,7 @@ import numba
 import numpy as np
 import ufl
 
-from fempm import newmark
+from fempm import collective, newmark
 from fempm.bases import Basis
 from fempm.formsfile import load_forms
 from fempm.linear import LinearSolver, SolveFailed
@@ -267,7 +267,7 @@ class GridSystem:
 
     def _free_norm(self, R) -> float:
         local = R.array[: self.space.num_owned_dofs][self.free.mask]
-        return float(np.sqrt(self.comm.allreduce(np.einsum("i,i->", local, local))))
+        return float(np.sqrt(collective.total(self.comm, float(np.einsum("i,i->", local, local)))))
 
     def end_state(self) -> tuple[np.ndarray, np.ndarray]:
         """``v_{n+1}`` and ``a_{n+1}`` on the grid from the solved ``du`` (Newmark); keeps ``v_{n+1}``

@@ -35,6 +35,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fempm import collective
 from fempm.options import Physics
 from fempm.space import GridFunction, Space
 
@@ -165,12 +166,12 @@ class Walls:
         if not self.one_sided or not self._any_contact:
             return
         dry = ~keep.reshape(-1, self.space.bs)[:, self.space.field_offset(self.field)]
-        self.free_surface = self.space.comm.allreduce(int(np.count_nonzero(dry))) > 0
+        self.free_surface = collective.any_rank(self.space.comm, bool(dry.any()))
         if not self.free_surface:
             self.active[:] = True
         else:
             bs, first = self.space.bs, self.space.field_offset(self.field)
-            incoming = velocity.vector.array[self.normal // bs * 2 + self.normal % bs - first] * self.sign
+            incoming = velocity.array[self.normal // bs * 2 + self.normal % bs - first] * self.sign
             self.active |= ~self.wet
             self._entering = incoming > self.tolerances(0.0, 1.0)[1]
             self.active |= self._entering
@@ -195,7 +196,7 @@ class Walls:
         pull = self.active & ~self._entering & (reaction * self.sign > STRONG_PULL * cell_weight)
         back = self._let_go & ~self.active & (displacement[self.normal] * self.sign > motion)
         count = int(np.count_nonzero(pull))
-        if self.space.comm.allreduce(count + int(np.count_nonzero(back))) == 0:
+        if collective.total(self.space.comm, count + int(np.count_nonzero(back))) == 0:
             return False
         self.active[pull], self.active[back] = False, True
         self._let_go |= pull
@@ -276,22 +277,22 @@ class Walls:
     def impose(self, velocity: GridFunction, acceleration: GridFunction | None = None):
         """The walls' own motion on the held dofs of two-component grid functions: their velocity
         in ``velocity``, zero in ``acceleration`` (ghosts updated)."""
-        velocity.vector.array[self._vector_index] = self.values
+        velocity.array[self._vector_index] = self.values
         velocity.scatter_forward()
         if acceleration is not None:
-            acceleration.vector.array[self._vector_index] = 0.0
+            acceleration.array[self._vector_index] = 0.0
             acceleration.scatter_forward()
 
     def clear(self, flag: GridFunction):
         """Zero on the held dofs of a two-component grid function ``flag`` (ghosts updated)."""
-        flag.vector.array[self._vector_index] = 0.0
+        flag.array[self._vector_index] = 0.0
         flag.scatter_forward()
 
     def held_mask(self, vector_space: Space) -> np.ndarray:
         """Boolean ``(local functions, 2)``: the components held, owned and ghost, on a space of
         the same basis with one two-component field."""
         flag = GridFunction(vector_space, "held")
-        flag.vector.array[self._vector_index] = 1.0
+        flag.array[self._vector_index] = 1.0
         flag.scatter_forward()
         return flag.values > 0.5
 
@@ -388,7 +389,7 @@ class FreeDofs:
         keep[self.walls.positions] = False
         if self._closed:
             pressure_held = int(np.count_nonzero(~keep.reshape(-1, self.space.bs)[:, self._pressure]))
-            if self.space.comm.allreduce(pressure_held) == 0 and self._pin is not None:
+            if collective.total(self.space.comm, pressure_held) == 0 and self._pin is not None:
                 keep[self._pin] = False
         self.mask = keep
         return self.space.local_to_global[: self.space.num_owned_dofs][keep]
