@@ -109,13 +109,26 @@ class DeepWater:
         """``deep`` and ``by_parts`` on the local functions, from one pass over the cells, given each function's
         speed over ``sqrt(|g| h)`` (None: still water, as without gravity; collective)."""
         shallow, ramps = self._summed(phi, by_parts=True)
-        still, moving = (np.where(ramps[:, k + 1] > 0, 0.0, np.exp(ramps[:, k])) for k in (0, 2))
-        if speed is None:
-            by_parts = still
-        else:
-            share = np.clip((STILL_SPEEDS[1] - speed) / (STILL_SPEEDS[1] - STILL_SPEEDS[0]), 0.0, 1.0)
-            by_parts = moving + share * (still - moving)
-        return (shallow == 0).astype(np.float64), by_parts
+        deep, by_parts = np.empty(len(shallow)), np.empty(len(shallow))
+        _masks(shallow, ramps, np.exp(ramps[:, 0]), np.exp(ramps[:, 2]), np.empty(0) if speed is None else speed,
+               *STILL_SPEEDS, deep, by_parts)
+        return deep, by_parts
+
+
+@numba.njit(cache=True)
+def _masks(shallow, ramps, still_product, moving_product, speed, slow, fast, deep, by_parts):
+    """``deep`` where no cell is shallow; ``by_parts``: each ramp's product over the cells (zero where one of
+    them is zero), the still one's blended into the moving one's as the speed rises from ``slow`` to ``fast``
+    (the still one alone without speeds)."""
+    for i in range(deep.shape[0]):
+        deep[i] = 1.0 if shallow[i] == 0 else 0.0
+        still = 0.0 if ramps[i, 1] > 0 else still_product[i]
+        if speed.shape[0] == 0:
+            by_parts[i] = still
+            continue
+        moving = 0.0 if ramps[i, 3] > 0 else moving_product[i]
+        share = min(max((fast - speed[i]) / (fast - slow), 0.0), 1.0)
+        by_parts[i] = moving + share * (still - moving)
 
 
 @numba.njit(cache=True)

@@ -295,7 +295,7 @@ class Grid:
                 the message names the first offending point and how many there are.
         """
         x = np.asarray(x, dtype=np.float64).reshape(-1, 2)
-        cells, xi, bad = self._place(x)
+        cells, xi, bad = self.place(x)
         if np.any(bad):
             k = np.flatnonzero(bad)
             label = ids[k[0]] if ids is not None else k[0]
@@ -308,10 +308,12 @@ class Grid:
 
     def outside(self, x: np.ndarray) -> np.ndarray:
         """Boolean mask of the points outside the tank (or not finite)."""
-        return self._place(np.asarray(x, dtype=np.float64).reshape(-1, 2))[2]
+        return self.place(x)[2]
 
-    def _place(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Cells, reference coordinates and the outside mask of points ``x`` ``(n, 2)`` (:func:`_place`)."""
+    def place(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Cells, reference coordinates and the outside mask of points ``x`` ``(n, 2)`` (:func:`_place`): as
+        :meth:`locate`, with the points outside the tank marked (cell -1, NaN coordinates) instead of an error."""
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 2)
         n = len(x)
         cells, xi, outside = np.empty(n, dtype=np.int64), np.empty((n, 2)), np.empty(n, dtype=np.bool_)
         _place(np.ascontiguousarray(x), self.lower, self.h, self.nx, self.ny, self._extent, self.last, self.cut,

@@ -149,8 +149,9 @@ class ImplicitSolver(Stepper):
         self.check_pressure = self._pressure_check()
         self.check_energy = self._energy_watch()
         self.max_divergence = 0.0
+        self._gravity = float(np.linalg.norm(physics.gravity))  # |g|
         # with the split (either known pressure) the shifting fades at rest (fempm.shifting)
-        rest_speed = (REST_SPEED * np.sqrt(np.linalg.norm(physics.gravity) * self.grid.h)
+        rest_speed = (REST_SPEED * np.sqrt(self._gravity * self.grid.h)
                       if s.constants["split"] else 0.0)
         self._shifting = (ParticleShifting(particles, scheme.shifting, [walls[side] in ("slip", "no-slip") for side in SIDES],
                                            scheme.shifting_keeps_angular_momentum, rest_speed)
@@ -257,7 +258,7 @@ class ImplicitSolver(Stepper):
                     s.fields["grid_acceleration"].values, self._held.values, keep, s.space.field_offset("p"))
         phi = rho[:, 0] / self._reference_density  # the wet fraction (fempm.density)
         if s.constants["by_parts"] or s.constants["split"]:  # the weight of the work by parts, the correction's deep water
-            g = float(np.linalg.norm(self.physics.gravity))
+            g = self._gravity
             v = s.fields["grid_velocity"].values
             speed = (np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) / np.sqrt(g * self.grid.h)
                      if g > 0 else None)
@@ -293,7 +294,7 @@ class ImplicitSolver(Stepper):
         sc = self.scheme
         values, divergence = self._particle_room(len(p), g.space.bs)
         share = transfer.pic_share(sc.transfer, sc.pic_blend, sc.pic_rate, s.dt)
-        rest = transfer.rest_share(sc.transfer, sc.rest_pic_rate, s.dt, self.physics.gravity, self.grid.h)
+        rest = transfer.rest_share(sc.transfer, sc.rest_pic_rate, s.dt, self._gravity, self.grid.h)
         noise = None if self._noise is None else (self._noise, min(1.0, sc.noise_rate * s.dt))
         transfer.update_state(g, p, sc.transfer, share, values, divergence, rest, noise)
         x = p.x

@@ -360,12 +360,15 @@ class Particles:
         rank or, with ``on_exit="delete"``, are removed and counted in :attr:`lost_mass`.
         """
         self.check()
-        gone = outside_or_blocked(self.grid, self.x)
-        if self.on_exit == "delete":
+        cells, xi, gone = self.grid.place(self.x)
+        if self.grid.blocked.any():
+            gone |= (cells >= 0) & self.grid.blocked[cells]
+        if self.on_exit == "delete" and gone.any():
             self._remove(gone)
-        else:
+            cells, xi = self.grid.locate(self.x, ids=self.id)
+        elif self.on_exit != "delete":
             raise_if_any_gone(self.grid, self.x, self.id, gone)
-        self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
+        self.cell, self.xi = cells, xi
         if self.grid.comm.size > 1:
             self.fields = exchange(self.fields, self.grid.owner[self.cell], self.grid.comm)
             self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
@@ -418,16 +421,6 @@ def exchange(fields: dict[str, np.ndarray], destination: np.ndarray, comm) -> di
         comm.Alltoallv([a, counts * width], [out, recv_counts * width])
         received[name] = out
     return received
-
-
-def outside_or_blocked(grid: Grid, x: np.ndarray) -> np.ndarray:
-    """Mask of the points outside the grid or inside an obstacle cell."""
-    gone = grid.outside(x)
-    if grid.blocked.any():
-        inside = np.flatnonzero(~gone)
-        cells, _ = grid.locate(x[inside])
-        gone[inside[grid.blocked[cells]]] = True
-    return gone
 
 
 def raise_if_any_gone(grid: Grid, x: np.ndarray, ids: np.ndarray, gone: np.ndarray):

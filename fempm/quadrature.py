@@ -371,26 +371,41 @@ class _Coefficients:
             offset += size
         self.width = max(offset, 1)  # as wide as what pack returns
         self._nodal_positions, self._particle_slots = self._positions()
+        self._particle_parts = [(name, offset, size) for kind, name, offset, size, _ in self._parts if kind == "particle"]
+        self._grid_parts = [(name, offset + index) for kind, name, offset, _, index in self._parts if kind != "particle"]
+        self._jet_slots = {}  # which grid functions are non-zero -> (their slots, the zero ones' columns in pack)
 
     def pack(self, particles, phi, lfun) -> np.ndarray:
         """Per-particle coefficient arrays in the kernel's order (particle fields, grid jets): the
-        grid functions side by side, their jets in one pass over the particles."""
+        grid functions side by side, their jets in one pass over the particles; a function that is
+        zero everywhere (U at the start of a step between walls at rest) gets zero jets without the pass."""
         n = len(particles)
         if not self._parts:
             return np.zeros((n, 1))
         out = np.empty((n, self.width))
-        columns, slots = [], []
-        for kind, name, offset, size, index in self._parts:
-            if kind == "particle":
-                out[:, offset: offset + size] = particles[name].reshape(n, size)
-            elif self.grid_functions[name].values.any():
-                columns.append(self.grid_functions[name].values)
-                slots.append(offset + index)
-            else:  # a function that is zero (U at the start of a step between walls at rest): zero jets
-                out[:, offset: offset + size] = 0.0
-        if columns:
-            assembly.pack_jets(phi, lfun, assembly.side_by_side(columns), np.concatenate(slots), out)
+        for name, offset, size in self._particle_parts:
+            out[:, offset: offset + size] = particles[name].reshape(n, size)
+        if not self._grid_parts:
+            return out
+        values = tuple(self.grid_functions[name].values for name, _ in self._grid_parts)
+        nonzero = assembly.nonzero_arrays(values)
+        slots, zero = self._slots_of(nonzero)
+        out[:, zero] = 0.0
+        if slots.size:
+            assembly.pack_jets(phi, lfun, assembly.side_by_side(v for v, keep in zip(values, nonzero) if keep), slots,
+                               out)
         return out
+
+    def _slots_of(self, nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Where the jets of the non-zero grid functions go, and the columns of the zero ones (kept per set)."""
+        key = nonzero.tobytes()
+        if key not in self._jet_slots:
+            def joined(parts):
+                return np.concatenate(parts).ravel() if parts else np.zeros(0, dtype=np.int64)
+            slots = [index for (_, index), keep in zip(self._grid_parts, nonzero) if keep]
+            zero = [index.ravel() for (_, index), keep in zip(self._grid_parts, nonzero) if not keep]
+            self._jet_slots[key] = (np.concatenate(slots) if slots else np.zeros((0, 0), dtype=np.int64), joined(zero))
+        return self._jet_slots[key]
 
     def nodal_slots(self):
         """For lumped integrals: the grid functions' coefficients side by side, and where

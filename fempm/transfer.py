@@ -426,14 +426,14 @@ def pic_share(kind: str, pic_blend: float, pic_rate: float, dt: float) -> float:
 REST_SPEED = 1.0e-2
 
 
-def rest_share(kind: str, rest_pic_rate: float, dt: float, gravity, h: float) -> tuple[float, float]:
+def rest_share(kind: str, rest_pic_rate: float, dt: float, g: float, h: float) -> tuple[float, float]:
     """The PIC share of water at rest and the speed below which it sets in: ``(min(1, rest_pic_rate dt),
     REST_SPEED sqrt(|g| h))``; ``(0, 0)`` (none) for ``apic`` and ``tpic`` (whose share is whole) and
     without gravity. Between that speed and zero a particle's share rises linearly from the flowing
     share (:func:`pic_share`) to it (:func:`update_state`): a step whose water is at rest damps the
     slow modes the particle quadrature's errors grow there, at a rate that does not grow as dt falls.
+    ``g``: gravity's magnitude ``|g|``.
     """
-    g = float(np.linalg.norm(gravity))
     if kind in AFFINE_KINDS or g == 0.0 or rest_pic_rate == 0.0:
         return 0.0, 0.0
     return min(1.0, rest_pic_rate * dt), REST_SPEED * np.sqrt(g * h)

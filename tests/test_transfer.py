@@ -311,11 +311,11 @@ def test_rest_share():
     """min(1, rest_pic_rate dt) below 0.01 sqrt(|g| h) for FLIP and affine-FLIP under gravity; none for the
     affine kinds (their share is whole), without gravity or at a rate of 0."""
     expected = (0.3, 0.01 * np.sqrt(9.81 * 0.04))
-    assert transfer.rest_share("affine-flip", 300.0, 1e-3, (0.0, -9.81), 0.04) == pytest.approx(expected)
-    assert transfer.rest_share("flip", 300.0, 1e-2, (0.0, -9.81), 0.04)[0] == 1.0
-    assert transfer.rest_share("tpic", 300.0, 1e-3, (0.0, -9.81), 0.04) == (0.0, 0.0)
-    assert transfer.rest_share("affine-flip", 300.0, 1e-3, (0.0, 0.0), 0.04) == (0.0, 0.0)
-    assert transfer.rest_share("affine-flip", 0.0, 1e-3, (0.0, -9.81), 0.04) == (0.0, 0.0)
+    assert transfer.rest_share("affine-flip", 300.0, 1e-3, 9.81, 0.04) == pytest.approx(expected)
+    assert transfer.rest_share("flip", 300.0, 1e-2, 9.81, 0.04)[0] == 1.0
+    assert transfer.rest_share("tpic", 300.0, 1e-3, 9.81, 0.04) == (0.0, 0.0)
+    assert transfer.rest_share("affine-flip", 300.0, 1e-3, 0.0, 0.04) == (0.0, 0.0)
+    assert transfer.rest_share("affine-flip", 0.0, 1e-3, 9.81, 0.04) == (0.0, 0.0)
 
 
 def test_the_pic_share_rises_linearly_as_the_water_comes_to_rest(comm):
