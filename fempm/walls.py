@@ -121,6 +121,8 @@ class Walls:
             partner.append(pair)
         join = lambda parts, dtype: np.concatenate(parts).astype(dtype) if parts else np.zeros(0, dtype)  # noqa: E731
         self.normal, self.sign, self.partner = join(normal, np.int64), join(sign, float), join(partner, np.int64)
+        bs, first = space.bs, space.field_offset(self.field)
+        self._normal_in_vector = self.normal // bs * 2 + self.normal % bs - first  # in a two-component function
         orphans = np.setdiff1d(join(orphans, np.int64), self._fixed)
         self._fixed = np.concatenate([self._fixed, orphans])
         self._fixed_values = np.concatenate([self._fixed_values, np.zeros(len(orphans))])
@@ -165,13 +167,12 @@ class Walls:
         """
         if not self.one_sided or not self._any_contact:
             return
-        dry = ~keep.reshape(-1, self.space.bs)[:, self.space.field_offset(self.field)]
-        self.free_surface = collective.any_rank(self.space.comm, bool(dry.any()))
+        kept = keep.reshape(-1, self.space.bs)[:, self.space.field_offset(self.field)]
+        self.free_surface = collective.any_rank(self.space.comm, not kept.all())
         if not self.free_surface:
             self.active[:] = True
         else:
-            bs, first = self.space.bs, self.space.field_offset(self.field)
-            incoming = velocity.array[self.normal // bs * 2 + self.normal % bs - first] * self.sign
+            incoming = velocity.array[self._normal_in_vector] * self.sign
             self.active |= ~self.wet
             self._entering = incoming > self.tolerances(0.0, 1.0)[1]
             self.active |= self._entering
