@@ -15,6 +15,9 @@ A case is ``CELLS:WARM:STEPS`` or ``CELLS:WARM:STEPS:N`` with N x N particles pe
 the seed's and the shipped scene's; 236 cells at 2 x 2: 27,848 particles, the size of Tesserae.jl's dam
 break; 40:100:300:4 gives 3200, the scene until its particles were shifted). ``--against DIR`` is a checkout with its own ``.venv`` (its ``fempm`` is imported from
 DIR); ``--page`` writes the tables into a Markdown page (``benchmarks/templates/speed-step.md``).
+``--interfoam``: in every round of a 40² case also OpenFOAM's interFoam on the same tank at 40² to 2 s of
+flow (``benchmarks/interfoam.py``), whose time a step measures the machine in the same run: issue 12's
+2.5 ms at 800 particles was set where interFoam took 2.2 s for its 571 steps (3.85 ms a step).
 """
 
 from __future__ import annotations
@@ -99,14 +102,27 @@ def median(values):
     return 0.5 * (values[(n - 1) // 2] + values[n // 2])
 
 
-def compare(case: tuple[int, ...], versions: dict, rounds: int) -> tuple[str, str]:
-    """Run the versions alternately; a heading line and the Markdown table of medians and ratios."""
+def interfoam_step() -> tuple[float, float, int]:
+    """interFoam on the dam break's tank at 40² cells to 2 s of flow: its wall and CPU milliseconds a step, and
+    its steps (the interFoam process alone, as ``benchmarks/versus_interfoam.py`` times it)."""
+    import interfoam
+
+    done = interfoam.run(40, end_time=2.0)
+    return 1e3 * done.wall_s / done.steps, 1e3 * done.cpu_s / done.steps, done.steps
+
+
+def compare(case: tuple[int, ...], versions: dict, rounds: int, with_interfoam: bool = False) -> tuple[str, str]:
+    """Run the versions alternately (and interFoam 40², ``with_interfoam``); a heading line and the Markdown
+    table of medians and ratios."""
     cells, warm, steps, per_cell = (*case, 2)[:4]
     load_start = os.getloadavg()
     results = {name: [] for name in versions}
+    foam = []
     for _ in range(rounds):
         for name, (python, root, petsc) in versions.items():
             results[name].append(run(python, root, case, petsc))
+        if with_interfoam:
+            foam.append(interfoam_step())
     load_end = os.getloadavg()
     keys = ["step cpu", "step wall", *PHASES, "rest", *EVENTS]
     table = {name: {k: median([r[k] for r in rs]) for k in keys} for name, rs in results.items()}
@@ -117,7 +133,15 @@ def compare(case: tuple[int, ...], versions: dict, rounds: int) -> tuple[str, st
                f"{', '.join(f'{x:.2f}' for x in load_start)} at the start, "
                f"{', '.join(f'{x:.2f}' for x in load_end)} at the end; solves that kept the last one's "
                f"pattern: " + ", ".join(f"{name} {rs[0]['pattern kept']}" for name, rs in results.items()))
+    if foam:
+        wall, cpu = median([f[0] for f in foam]), median([f[1] for f in foam])
+        heading += (f"; interFoam 40² to 2 s of flow in the same rounds: {foam[0][2]} steps, {wall:.3f} ms a step "
+                    f"(wall), {cpu:.3f} (CPU)")
+        for name in versions:
+            table[name]["interfoam"] = table[name]["step cpu"] / cpu
+        keys.append("interfoam")
     label = {"step cpu": "step, CPU", "step wall": "step, wall", "rest": "rest (Python between phases)",
+             "interfoam": "step, CPU, over interFoam 40²'s (issue 12: 2.5 / 3.85 = 0.65)",
              **{k: f"solve: {k} (wall)" for k in EVENTS}}
     rows = []
     for k in keys:
@@ -137,6 +161,8 @@ def main():
     parser.add_argument("--against", type=Path, default=None, help="a checkout to compare with (its .venv)")
     parser.add_argument("--petsc", default="{}", help="PETSc options (JSON) for this checkout's runs")
     parser.add_argument("--page", type=Path, default=None, help="write the tables into this Markdown page")
+    parser.add_argument("--interfoam", action="store_true",
+                        help="also interFoam 40² in every round of a 40² case (the machine's speed in the same run)")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--cells", type=int, help=argparse.SUPPRESS)
     parser.add_argument("--warm", type=int, help=argparse.SUPPRESS)
@@ -151,8 +177,16 @@ def main():
     if args.against:
         versions["other"] = (str(args.against.resolve() / ".venv" / "bin" / "python"), args.against.resolve(), {})
     sections = []
+    with_interfoam = args.interfoam
+    if with_interfoam:
+        import interfoam
+
+        reason = interfoam.ensure_openfoam()
+        if reason:
+            print(f"step_cost.py: interFoam skipped: {reason}", file=sys.stderr)
+            with_interfoam = False
     for case in args.case or [(40, 100, 300)]:
-        heading, text = compare(case, versions, args.rounds)
+        heading, text = compare(case, versions, args.rounds, with_interfoam and case[0] == 40)
         print(heading + "\n\n" + text + "\n", flush=True)
         sections.append(f"### {heading}\n\n{text}\n")
     if args.page:
