@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from fempm import collective
@@ -338,8 +339,7 @@ class Particles:
     # -- validation, location, migration --------------------------------------------
     def check(self):
         """Raise a clear error for a non-finite position or a non-positive volume or mass."""
-        if (self.fields["volume"].min(initial=np.inf) > 0 and self.fields["mass"].min(initial=np.inf) > 0
-                and np.isfinite(self.x).all()):  # (NaN fails the comparisons) nothing to name
+        if _all_valid(self.fields["volume"], self.fields["mass"], self.x):  # nothing to name
             return
         for name in ("volume", "mass"):
             bad = np.flatnonzero(~(self.fields[name] > 0))
@@ -372,11 +372,43 @@ class Particles:
         if self.grid.comm.size > 1:
             self.fields = exchange(self.fields, self.grid.owner[self.cell], self.grid.comm)
             self.cell, self.xi = self.grid.locate(self.x, ids=self.id)
-        # by (cell, id) as one key: a stable sort of nearly sorted keys (the last step's order) is
-        # nearly linear, a lexsort is not; cells times ids stay far below 2^63
-        order = np.argsort(self.cell * (int(self.id.max(initial=-1)) + 1) + self.id, kind="stable")
-        self._take(order)
+        self._take(_cell_id_order(self.cell, self.id, self.grid.num_cells))
         self.cache.clear()
+
+
+@numba.njit(cache=True)
+def _all_valid(volume, mass, x) -> bool:
+    """Whether every volume and mass is positive and every position finite (NaN fails the comparisons)."""
+    for p in range(volume.shape[0]):
+        if not (volume[p] > 0 and mass[p] > 0 and np.isfinite(x[p, 0]) and np.isfinite(x[p, 1])):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _cell_id_order(cell, ids, num_cells):
+    """The particles in order of (cell, id): a counting sort by cell, which keeps the last order within a cell,
+    then each cell's few particles by id (an insertion sort of what is mostly in order already)."""
+    n = cell.shape[0]
+    start = np.zeros(num_cells + 1, dtype=np.int64)
+    for p in range(n):
+        start[cell[p] + 1] += 1
+    for c in range(num_cells):
+        start[c + 1] += start[c]
+    fill = start[:-1].copy()
+    order = np.empty(n, dtype=np.int64)
+    for p in range(n):
+        order[fill[cell[p]]] = p
+        fill[cell[p]] += 1
+    for c in range(num_cells):
+        for i in range(start[c] + 1, start[c + 1]):
+            q = order[i]
+            j = i
+            while j > start[c] and ids[order[j - 1]] > ids[q]:
+                order[j] = order[j - 1]
+                j -= 1
+            order[j] = q
+    return order
 
 
 class ParticleSubset:
