@@ -491,23 +491,18 @@ def particle_jets(phi_p, lfun_p, values, jets):
                 jets[a, c] += w * values[f, c]
 
 
-def nonzero_arrays(arrays) -> np.ndarray:
-    """Which of some 2-D float arrays (a tuple, each C-contiguous) have a non-zero entry."""
-    flags = np.empty(len(arrays), dtype=np.bool_)
-    _nonzero_arrays(arrays, flags)
-    return flags
-
-
 @numba.njit(cache=True)
-def _nonzero_arrays(arrays, flags):
+def nonzero_arrays(arrays):
+    """Which of some 2-D float arrays (a tuple, each C-contiguous) have a non-zero entry."""
+    flags = np.zeros(len(arrays), dtype=np.bool_)
     i = 0
     for a in arrays:
-        flags[i] = False
         for v in a.ravel():
             if v != 0.0:
                 flags[i] = True
                 break
         i += 1
+    return flags
 
 
 def side_by_side(arrays) -> np.ndarray:

@@ -386,20 +386,27 @@ def _all_valid(volume, mass, x) -> bool:
 
 
 @numba.njit(cache=True)
-def _cell_id_order(cell, ids, num_cells):
-    """The particles in order of (cell, id): a counting sort by cell, which keeps the last order within a cell,
-    then each cell's few particles by id (an insertion sort of what is mostly in order already)."""
-    n = cell.shape[0]
-    start = np.zeros(num_cells + 1, dtype=np.int64)
-    for p in range(n):
-        start[cell[p] + 1] += 1
-    for c in range(num_cells):
-        start[c + 1] += start[c]
+def counting_order(keys, count):
+    """The indices of ``keys`` (integers in ``[0, count)``) by increasing key, in their own order within a key (a
+    counting sort), and where each key's run starts (``count + 1`` entries)."""
+    start = np.zeros(count + 1, dtype=np.int64)
+    for i in range(keys.shape[0]):
+        start[keys[i] + 1] += 1
+    for k in range(count):
+        start[k + 1] += start[k]
     fill = start[:-1].copy()
-    order = np.empty(n, dtype=np.int64)
-    for p in range(n):
-        order[fill[cell[p]]] = p
-        fill[cell[p]] += 1
+    order = np.empty(keys.shape[0], dtype=np.int64)
+    for i in range(keys.shape[0]):
+        order[fill[keys[i]]] = i
+        fill[keys[i]] += 1
+    return order, start
+
+
+@numba.njit(cache=True)
+def _cell_id_order(cell, ids, num_cells):
+    """The particles in order of (cell, id): by cell (:func:`counting_order`, which keeps the last order within a
+    cell), then each cell's few particles by id (an insertion sort of what is mostly in order already)."""
+    order, start = counting_order(cell, num_cells)
     for c in range(num_cells):
         for i in range(start[c] + 1, start[c + 1]):
             q = order[i]

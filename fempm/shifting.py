@@ -45,6 +45,7 @@ import numba
 import numpy as np
 
 from fempm import collective
+from fempm.particles import counting_order
 
 __all__ = ["REST_SPEED", "ParticleShifting", "concentration_gradients", "kernel_at_spacing", "lattice_concentration", "spacing"]
 
@@ -85,22 +86,12 @@ def _pair(dx, dy, support2, inv_hk, norm, dnorm, inv_w_dp):
 @numba.njit(cache=True)
 def _bins(x, lower, nbx, nby, size):
     """The points sorted by square bins of side ``size`` (a counting sort): the order, and each bin's start in it."""
-    n = x.shape[0]
-    start = np.zeros(nbx * nby + 1, dtype=np.int64)
-    bin_of = np.empty(n, dtype=np.int64)
-    for i in range(n):
+    bin_of = np.empty(x.shape[0], dtype=np.int64)
+    for i in range(x.shape[0]):
         bx = min(max(int((x[i, 0] - lower[0]) / size), 0), nbx - 1)
         by = min(max(int((x[i, 1] - lower[1]) / size), 0), nby - 1)
         bin_of[i] = bx + nbx * by
-        start[bin_of[i] + 1] += 1
-    for b in range(nbx * nby):
-        start[b + 1] += start[b]
-    fill = start[:-1].copy()
-    order = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        order[fill[bin_of[i]]] = i
-        fill[bin_of[i]] += 1
-    return order, start
+    return counting_order(bin_of, nbx * nby)
 
 
 #: a bin's neighbours whose pairs it sums (the other half sum theirs with it): right, and the row above
