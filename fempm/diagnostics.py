@@ -58,6 +58,7 @@ def mechanical_energy(particles, gravity, datum) -> float:
 
 @numba.njit(cache=True)
 def _energy(x, v, m, gx, gy, x0, y0):
+    """``sum_p m_p (|v_p|^2 / 2 - g . (x_p - x0))`` on this rank."""
     total = 0.0
     for p in range(m.shape[0]):
         height = (x[p, 0] - x0) * gx + (x[p, 1] - y0) * gy
