@@ -408,29 +408,28 @@ class _Coefficients:
         return self._jet_slots[key]
 
     def nodal_slots(self):
-        """For lumped integrals: the grid functions' coefficients (a tuple of their value arrays, read where they
-        are), and where their values (``slot_pos`` <- array ``slot_array``'s column ``slot_col``) and derivatives
-        (``zero_pos``) go."""
-        G = tuple(self.grid_functions[name].values for kind, name, *_ in self._parts if kind != "particle")
-        return (G or (np.zeros((1, 1)),), *self._nodal_positions)
+        """For lumped integrals: the grid functions' coefficients side by side, and where
+        their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
+        columns = [self.grid_functions[name].values for kind, name, *_ in self._parts if kind != "particle"]
+        G = assembly.side_by_side(columns) if columns else np.zeros((1, 1))
+        return (G, *self._nodal_positions)
 
     def _positions(self):
-        """``slot_pos, slot_array, slot_col, zero_pos`` of :meth:`nodal_slots` and the particle fields' slots:
-        fixed by the form, worked out once."""
-        slot_pos, slot_array, slot_col, zero_pos, particle = [], [], [], [], []
-        array = 0
+        """``slot_pos, slot_col, zero_pos`` of :meth:`nodal_slots` and the particle fields' slots: fixed
+        by the form, worked out once."""
+        slot_pos, slot_col, zero_pos, particle = [], [], [], []
+        column = 0
         for kind, name, offset, size, index in self._parts:
             if kind == "particle":
                 particle.extend(range(offset, offset + size))
                 continue
             bs = self.grid_functions[name].space.bs
             slot_pos.extend(offset + index[:, 0])
-            slot_array.extend([array] * bs)
-            slot_col.extend(range(bs))
-            array += 1
+            slot_col.extend(column + np.arange(bs))
             zero_pos.extend(offset + index[:, 1:].ravel())
+            column += bs
         as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
-        return (as_int(slot_pos), as_int(slot_array), as_int(slot_col), as_int(zero_pos)), as_int(particle)
+        return (as_int(slot_pos), as_int(slot_col), as_int(zero_pos)), as_int(particle)
 
     def particle_slots(self) -> np.ndarray:
         """Positions of the particle fields in the packed coefficients."""
