@@ -400,11 +400,10 @@ class _Coefficients:
         """Where the jets of the non-zero grid functions go, and the columns of the zero ones (kept per set)."""
         key = nonzero.tobytes()
         if key not in self._jet_slots:
-            def joined(parts):
-                return np.concatenate(parts).ravel() if parts else np.zeros(0, dtype=np.int64)
             slots = [index for (_, index), keep in zip(self._grid_parts, nonzero) if keep]
             zero = [index.ravel() for (_, index), keep in zip(self._grid_parts, nonzero) if not keep]
-            self._jet_slots[key] = (np.concatenate(slots) if slots else np.zeros((0, 0), dtype=np.int64), joined(zero))
+            self._jet_slots[key] = (np.concatenate(slots) if slots else np.zeros((0, 0), dtype=np.int64),
+                                    np.concatenate(zero) if zero else np.zeros(0, dtype=np.int64))
         return self._jet_slots[key]
 
     def nodal_slots(self):
