@@ -6,6 +6,8 @@ keep a padded pattern, and each time the water reaches a function outside it (a 
 steps) the blocks, the split and S's symbolic LU are made again. This solve has no pattern to keep.
 At every call, from the grid matrix's CSR storage (:mod:`fempm.matrix`) and the free dofs:
 
+0. the three rows of each function with a free dof copied side by side, block by block (:func:`_block_rows`):
+   the passes below read them in order and one column a block, a function's three rows summed together;
 1. ``S = A11 - A10 diag(A00)^-1 A01`` on the free pressure dofs, each row summed on a dense box
    of the functions within twice the stencil's reach (as :func:`fempm.schur._schur_values` does);
 2. S's rows and columns in reverse Cuthill-McKee order (a breadth-first search from a function of
@@ -50,42 +52,75 @@ def _subtract(acc, corner, s, square, side, box):
 
 
 @numba.njit(cache=True)
-def _schur(indptr, columns, values, stencil, nfx, reach, bs, p_dofs, u_dofs, pos, diag, pointer, cols, vals):
+def _block_rows(indptr, columns, values, functions, rows, first_column, blocks):
+    """The three rows of each function ``functions[i]`` side by side, block by block:
+    ``rows[i, q, D, C]`` is entry ``D`` of block ``q`` of row ``(f, C)`` (a function's rows have the same
+    columns), ``first_column[i, q]`` the block's first column, ``blocks[i]`` the blocks in a row. A product
+    over a function's rows then reads one array in order and one column a block."""
+    for i in range(functions.shape[0]):
+        r = 3 * functions[i]
+        k0 = indptr[r]
+        length = indptr[r + 1] - k0
+        blocks[i] = length // 3
+        for q in range(blocks[i]):
+            first_column[i, q] = columns[k0 + 3 * q]
+            for D in range(3):
+                for C in range(3):
+                    rows[i, q, D, C] = values[k0 + C * length + 3 * q + D]
+
+
+@numba.njit(cache=True, inline="always")
+def _subtract_pair(acc, corner, s0, square0, s1, square1, side, box):
+    """``acc -= s0 square0``, then ``acc -= s1 square1``, entry by entry in one pass (as the two in turn)."""
+    for dy in range(side):
+        row = corner + box * dy
+        for dx in range(side):
+            a = acc[row + dx] - s0 * square0[side * dy + dx]
+            acc[row + dx] = a - s1 * square1[side * dy + dx]
+
+
+@numba.njit(cache=True)
+def _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs, pos, diag, pointer, cols, vals):
     """CSR of ``A11 - A10 diag(A00)^-1 A01`` on the free pressure dofs ``p_dofs`` (columns by ``pos``, in
-    increasing order; entries that sum to exactly zero left out)."""
+    increasing order; entries that sum to exactly zero left out), from :func:`_block_rows`."""
     width, box = 2 * reach + 1, 4 * reach + 1
     places = width * width
     squares = np.zeros((u_dofs.shape[0], places))  # each velocity row of A01 on its stencil, free columns
-    for i in range(u_dofs.shape[0]):
-        c = u_dofs[i]
+    for j in range(u_dofs.shape[0]):
+        c = u_dofs[j]
+        i = function_at[c // 3]
         for place in range(places):
-            q = stencil[c // bs, place]
-            if q >= 0:
-                k = indptr[c] + bs * q + bs - 1
-                if pos[columns[k]] >= 0:
-                    squares[i, place] = values[k]
+            q = stencil[c // 3, place]
+            if q >= 0 and pos[first_column[i, q] + 2] >= 0:
+                squares[j, place] = rows[i, q, 2, c % 3]
     corner = np.empty(places, dtype=np.int64)  # a stencil place's stencil, placed in the box
     for place in range(places):
         corner[place] = box * (place // width) + place % width
     acc = np.zeros(box * box)
     count = 0
-    for i in range(p_dofs.shape[0]):
-        r = p_dofs[i]
-        f = r // bs
+    for n in range(p_dofs.shape[0]):
+        f = p_dofs[n] // 3
+        i = function_at[f]
         fi, fj = f % nfx, f // nfx
         for place in range(places):
             q = stencil[f, place]
             if q < 0:
                 continue
-            k = indptr[r] + bs * q
-            if pos[columns[k + bs - 1]] >= 0:
-                acc[corner[place] + (box + 1) * reach] += values[k + bs - 1]
-            for D in range(bs - 1):
-                c = columns[k + D]
-                if pos[c] < 0 or values[k + D] == 0.0:
+            c0 = first_column[i, q]
+            if pos[c0 + 2] >= 0:
+                acc[corner[place] + (box + 1) * reach] += rows[i, q, 2, 2]
+            a0, a1 = rows[i, q, 0, 2], rows[i, q, 1, 2]
+            if reach == 2 and pos[c0] >= 0 and a0 != 0.0 and pos[c0 + 1] >= 0 and a1 != 0.0:
+                # the quadratic B-spline's, as constants: the loops unroll
+                _subtract_pair(acc, corner[place], a0 / diag[pos[c0]], squares[pos[c0]], a1 / diag[pos[c0 + 1]],
+                               squares[pos[c0 + 1]], 5, 9)
+                continue
+            for D in range(2):
+                c = c0 + D
+                if pos[c] < 0 or rows[i, q, D, 2] == 0.0:
                     continue
-                s = values[k + D] / diag[pos[c]]
-                if reach == 2:  # the quadratic B-spline's, as constants: the loops unroll
+                s = rows[i, q, D, 2] / diag[pos[c]]
+                if reach == 2:
                     _subtract(acc, corner[place], s, squares[pos[c]], 5, 9)
                 else:
                     _subtract(acc, corner[place], s, squares[pos[c]], width, box)
@@ -93,11 +128,11 @@ def _schur(indptr, columns, values, stencil, nfx, reach, bs, p_dofs, u_dofs, pos
             for bx in range(box):
                 b = bx + box * by
                 if acc[b] != 0.0:
-                    cols[count] = pos[bs * (fi + bx - 2 * reach + nfx * (fj + by - 2 * reach)) + bs - 1]
+                    cols[count] = pos[3 * (fi + bx - 2 * reach + nfx * (fj + by - 2 * reach)) + 2]
                     vals[count] = acc[b]
                     count += 1
                     acc[b] = 0.0
-        pointer[i + 1] = count
+        pointer[n + 1] = count
 
 
 @numba.njit(cache=True)
@@ -203,58 +238,39 @@ def _band_solve(band, lower, last, y):
 
 
 @numba.njit(cache=True)
-def _products(indptr, columns, values, bs, rows, first, count, x, out):
-    """``out[i]`` = row ``rows[i]`` times ``x`` over its columns of components ``first .. first + count - 1``.
-    ``rows`` in increasing order: where all three rows of a function (the same columns) are there, they are summed
-    side by side, each in its own order, so that the sums' chains of additions overlap."""
-    i = 0
-    while i < rows.shape[0]:
-        r = rows[i]
-        if bs == 3 and i + 2 < rows.shape[0] and rows[i + 2] == r + 2 and r % 3 == 0:
-            o1, o2 = indptr[r + 1] - indptr[r], indptr[r + 2] - indptr[r]
-            s0 = s1 = s2 = 0.0
-            for k in range(indptr[r], indptr[r + 1], bs):
-                for D in range(first, first + count):
-                    xk = x[columns[k + D]]
-                    s0 += values[k + D] * xk
-                    s1 += values[k + o1 + D] * xk
-                    s2 += values[k + o2 + D] * xk
-            out[i], out[i + 1], out[i + 2] = s0, s1, s2
-            i += 3
-            continue
-        s = 0.0
-        for k in range(indptr[r], indptr[r + 1], bs):
-            for D in range(first, first + count):
-                s += values[k + D] * x[columns[k + D]]
-        out[i] = s
-        i += 1
-
-
-@numba.njit(cache=True)
-def _solve(indptr, columns, values, stencil, nfx, reach, bs, free, b, rtol, max_it, x):
+def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, x):
     n = b.shape[0]
     pos = np.full(n, -1, dtype=np.int64)  # a free dof's place among its field's
-    is_pressure = free % bs == bs - 1
+    is_pressure = free % 3 == 2
     p_dofs, u_dofs = free[is_pressure], free[~is_pressure]
     pos[p_dofs] = np.arange(p_dofs.shape[0])
     pos[u_dofs] = np.arange(u_dofs.shape[0])
-    centre = (stencil.shape[1] - 1) // 2
+    functions = np.unique(free // 3)
+    function_at = np.full(stencil.shape[0], -1, dtype=np.int64)
+    function_at[functions] = np.arange(functions.shape[0])
+    places = stencil.shape[1]
+    rows = np.empty((functions.shape[0], places, 3, 3))
+    first_column, blocks = np.empty((functions.shape[0], places), dtype=np.int64), np.empty(functions.shape[0], np.int64)
+    _block_rows(indptr, columns, values, functions, rows, first_column, blocks)
+    centre = (places - 1) // 2
     diag = np.empty(u_dofs.shape[0])
-    for i in range(u_dofs.shape[0]):
-        r = u_dofs[i]
-        diag[i] = values[indptr[r] + bs * stencil[r // bs, centre] + r % bs]
+    for j in range(u_dofs.shape[0]):
+        r = u_dofs[j]
+        i, C = function_at[r // 3], r % 3
+        diag[j] = rows[i, stencil[r // 3, centre], C, C]
         off = 0.0
-        for k in range(indptr[r], indptr[r + 1], bs):
-            for D in range(bs - 1):
-                if columns[k + D] != r and pos[columns[k + D]] >= 0:
-                    off += abs(values[k + D])
-        if not off <= DIAGONAL_SHARE * abs(diag[i]):
+        for q in range(blocks[i]):
+            for D in range(2):
+                c = first_column[i, q] + D
+                if c != r and pos[c] >= 0:
+                    off += abs(rows[i, q, D, C])
+        if not off <= DIAGONAL_SHARE * abs(diag[j]):
             return NOT_DIAGONAL
     npr = p_dofs.shape[0]
     box = 4 * reach + 1
     pointer = np.zeros(npr + 1, dtype=np.int64)
     cols, vals = np.empty(npr * box * box, dtype=np.int64), np.empty(npr * box * box)
-    _schur(indptr, columns, values, stencil, nfx, reach, bs, p_dofs, u_dofs, pos, diag, pointer, cols, vals)
+    _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs, pos, diag, pointer, cols, vals)
     order = np.empty(npr, dtype=np.int64)
     _reverse_cuthill_mckee(pointer, cols, order)
     band, lower, last = _band(pointer, cols, vals, order)
@@ -266,27 +282,55 @@ def _solve(indptr, columns, values, stencil, nfx, reach, bs, free, b, rtol, max_
     norm_b = np.sqrt(np.sum(r * r))
     u_star, p_new = np.zeros(n), np.zeros(n)
     y, t = np.empty(npr), np.empty(npr)
-    a01p, ax = np.empty(u_dofs.shape[0]), np.empty(free.shape[0])
     last_norm = norm_b
     for iteration in range(1, max_it + 1):
-        for i in range(u_dofs.shape[0]):  # the full factorisation's inverse applied to r
-            u_star[u_dofs[i]] = r[u_dofs[i]] / diag[i]
-        _products(indptr, columns, values, bs, p_dofs, 0, bs - 1, u_star, t)
-        for i in range(npr):
-            y[i] = r[p_dofs[order[i]]] - t[order[i]]
+        for j in range(u_dofs.shape[0]):  # the full factorisation's inverse applied to r
+            u_star[u_dofs[j]] = r[u_dofs[j]] / diag[j]
+        for i in range(functions.shape[0]):  # A10 u*
+            d = 3 * functions[i] + 2
+            if pos[d] < 0:
+                continue
+            s = 0.0
+            for q in range(blocks[i]):
+                c = first_column[i, q]
+                s += rows[i, q, 0, 2] * u_star[c]
+                s += rows[i, q, 1, 2] * u_star[c + 1]
+            t[pos[d]] = s
+        for j in range(npr):
+            y[j] = r[p_dofs[order[j]]] - t[order[j]]
         _band_solve(band, lower, last, y)
-        for i in range(npr):
-            p_new[p_dofs[order[i]]] = y[i]
-        _products(indptr, columns, values, bs, u_dofs, bs - 1, 1, p_new, a01p)
-        for i in range(u_dofs.shape[0]):
-            x[u_dofs[i]] += (r[u_dofs[i]] - a01p[i]) / diag[i]
-        for i in range(npr):
-            x[p_dofs[i]] += p_new[p_dofs[i]]
-        _products(indptr, columns, values, bs, free, 0, bs, x, ax)
+        for j in range(npr):
+            p_new[p_dofs[order[j]]] = y[j]
+        for i in range(functions.shape[0]):  # u = D^-1 (r_u - A01 p)
+            d = 3 * functions[i]
+            if pos[d] < 0 and pos[d + 1] < 0:
+                continue
+            s0 = s1 = 0.0
+            for q in range(blocks[i]):
+                p = p_new[first_column[i, q] + 2]
+                s0 += rows[i, q, 2, 0] * p
+                s1 += rows[i, q, 2, 1] * p
+            if pos[d] >= 0:
+                x[d] += (r[d] - s0) / diag[pos[d]]
+            if pos[d + 1] >= 0:
+                x[d + 1] += (r[d + 1] - s1) / diag[pos[d + 1]]
+        for j in range(npr):
+            x[p_dofs[j]] += p_new[p_dofs[j]]
         norm = 0.0
-        for i in range(free.shape[0]):
-            r[free[i]] = b[free[i]] - ax[i]
-            norm += r[free[i]] * r[free[i]]
+        for i in range(functions.shape[0]):  # r = b - A x, a function's three rows side by side
+            d = 3 * functions[i]
+            s0 = s1 = s2 = 0.0
+            for q in range(blocks[i]):
+                c = first_column[i, q]
+                for D in range(3):
+                    xc = x[c + D]
+                    s0 += rows[i, q, D, 0] * xc
+                    s1 += rows[i, q, D, 1] * xc
+                    s2 += rows[i, q, D, 2] * xc
+            for C in range(3):
+                if pos[d + C] >= 0:
+                    r[d + C] = b[d + C] - (s0 if C == 0 else s1 if C == 1 else s2)
+                    norm += r[d + C] * r[d + C]
         norm = np.sqrt(norm)
         if norm <= rtol * norm_b:
             return iteration
@@ -305,6 +349,8 @@ def solve(grid_matrix, free: np.ndarray, b: np.ndarray, rtol: float, x: np.ndarr
         or :data:`NOT_CONVERGED` (``x`` is then not a solution).
     """
     lay, space = grid_matrix.layout, grid_matrix.space
+    if space.bs != 3:
+        raise ValueError(f"the compiled solve takes two velocity components and a pressure, not {space.bs} dofs a function")
     reach = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2
-    return int(_solve(lay.indptr, lay.columns, grid_matrix.values, lay.stencil, space.basis.nfx, reach, space.bs,
+    return int(_solve(lay.indptr, lay.columns, grid_matrix.values, lay.stencil, space.basis.nfx, reach,
                       np.asarray(free, dtype=np.int64), b, rtol, max_it, x))
