@@ -198,25 +198,28 @@ def _band_lu(band, lower, last):
     """LU without pivoting in place (unit L below the diagonal); a row's upper part is taken only up to
     its ``last`` column, which the elimination widens as fill reaches further. False at a zero pivot.
     The pivot row's upper part is copied out first, so that the row updates read one array and write
-    another (the compiler then vectorises them)."""
-    n = band.shape[0]
-    pivot_row = np.empty(band.shape[1])
+    another, each a contiguous slice of the band's flat storage: the compiler then vectorises them (indexed
+    through the 2-D array, it gathered)."""
+    n, w = band.shape
+    flat = band.reshape(n * w)
+    pivot_row = np.empty(w)
     for k in range(n):
-        pivot = band[k, lower]
+        pivot = flat[k * w + lower]
         if pivot == 0.0 or not np.isfinite(pivot):
             return False
         length = last[k] - k
         for j in range(length):
-            pivot_row[j] = band[k, lower + 1 + j]
+            pivot_row[j] = flat[k * w + lower + 1 + j]
         for i in range(k + 1, min(n, k + lower + 1)):
-            l = band[i, k - i + lower]
+            at = i * w + k - i + lower
+            l = flat[at]
             if l == 0.0:
                 continue
             l /= pivot
-            band[i, k - i + lower] = l
-            row, start = band[i], k + 1 - i + lower
+            flat[at] = l
+            seg = flat[at + 1: at + 1 + length]
             for j in range(length):
-                row[start + j] -= l * pivot_row[j]
+                seg[j] -= l * pivot_row[j]
             last[i] = max(last[i], last[k])
     return True
 
