@@ -88,11 +88,16 @@ def _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs,
     squares = np.zeros((u_dofs.shape[0], places))  # each velocity row of A01 on its stencil, free columns
     for j in range(u_dofs.shape[0]):
         c = u_dofs[j]
+        if c % 3 == 1 and j > 0 and u_dofs[j - 1] == c - 1:
+            continue  # done with its function's first row
         i = function_at[c // 3]
+        both = c % 3 == 0 and j + 1 < u_dofs.shape[0] and u_dofs[j + 1] == c + 1
         for place in range(places):
             q = stencil[c // 3, place]
             if q >= 0 and pos[first_column[i, q] + 2] >= 0:
                 squares[j, place] = rows[i, q, 2, c % 3]
+                if both:
+                    squares[j + 1, place] = rows[i, q, 2, 1]
     corner = np.empty(places, dtype=np.int64)  # a stencil place's stencil, placed in the box
     for place in range(places):
         corner[place] = box * (place // width) + place % width
@@ -241,6 +246,19 @@ def _band_solve(band, lower, last, y):
 
 
 @numba.njit(cache=True)
+def _functions_of(free):
+    """The functions of the dofs ``free`` (in increasing order), each once."""
+    functions = np.empty(free.shape[0], dtype=np.int64)
+    count = 0
+    for i in range(free.shape[0]):
+        f = free[i] // 3
+        if count == 0 or functions[count - 1] != f:
+            functions[count] = f
+            count += 1
+    return functions[:count]
+
+
+@numba.njit(cache=True)
 def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, x):
     n = b.shape[0]
     pos = np.full(n, -1, dtype=np.int64)  # a free dof's place among its field's
@@ -248,7 +266,7 @@ def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, 
     p_dofs, u_dofs = free[is_pressure], free[~is_pressure]
     pos[p_dofs] = np.arange(p_dofs.shape[0])
     pos[u_dofs] = np.arange(u_dofs.shape[0])
-    functions = np.unique(free // 3)
+    functions = _functions_of(free)
     function_at = np.full(stencil.shape[0], -1, dtype=np.int64)
     function_at[functions] = np.arange(functions.shape[0])
     places = stencil.shape[1]
@@ -257,18 +275,25 @@ def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, 
     _block_rows(indptr, columns, values, functions, rows, first_column, blocks)
     centre = (places - 1) // 2
     diag = np.empty(u_dofs.shape[0])
-    for j in range(u_dofs.shape[0]):
-        r = u_dofs[j]
-        i, C = function_at[r // 3], r % 3
-        diag[j] = rows[i, stencil[r // 3, centre], C, C]
-        off = 0.0
+    for i in range(functions.shape[0]):  # a function's two velocity rows side by side
+        d = 3 * functions[i]
+        if pos[d] < 0 and pos[d + 1] < 0:
+            continue
+        off0 = off1 = 0.0
         for q in range(blocks[i]):
             for D in range(2):
                 c = first_column[i, q] + D
-                if c != r and pos[c] >= 0:
-                    off += abs(rows[i, q, D, C])
-        if not off <= DIAGONAL_SHARE * abs(diag[j]):
-            return NOT_DIAGONAL
+                if pos[c] >= 0:
+                    if c != d:
+                        off0 += abs(rows[i, q, D, 0])
+                    if c != d + 1:
+                        off1 += abs(rows[i, q, D, 1])
+        q = stencil[functions[i], centre]
+        for C in range(2):
+            if pos[d + C] >= 0:
+                diag[pos[d + C]] = rows[i, q, C, C]
+                if not (off0 if C == 0 else off1) <= DIAGONAL_SHARE * abs(rows[i, q, C, C]):
+                    return NOT_DIAGONAL
     npr = p_dofs.shape[0]
     box = 4 * reach + 1
     pointer = np.zeros(npr + 1, dtype=np.int64)
