@@ -95,7 +95,7 @@ def _row_chunks(pattern, perm, r, g, nl, tchunks, t):
         for i in range(3 * chunks):
             c, slot = t + i // 3, i % 3
             if slot == 0:
-                tchunks[c, 0], tchunks[c, 1], tchunks[c, 8] = g, D, i == 0
+                tchunks[c, 0], tchunks[c, 1], tchunks[c, 8] = g, D * nl, i == 0
             if i < pad:
                 tchunks[c, 2 + slot], tchunks[c, 5 + slot] = nk * nk, 0  # K's zero entry
             else:
@@ -139,8 +139,8 @@ def _add_particle_pattern(K, w, phi_p, tchunks, n_t, achunks, n_a, T, Ae):
     """``Ae += w * phi_p^T K phi_p`` over the entries of ``K`` in a pattern that holds all its non-zero
     ones (:func:`_grow_pattern`), three jets at a time so that the loops vectorise whole.
 
-    ``T[g, bs m + D] = w sum_b K[r_g, (D, b)] phi_p[b, m]`` for the kernel rows ``r_g`` with pattern
-    entries, a chunk ``(g, D, three entries of K, their jets b, first)`` adding three terms (writing
+    ``T[g, D nl + m] = w sum_b K[r_g, (D, b)] phi_p[b, m]`` for the kernel rows ``r_g`` with pattern
+    entries, a chunk ``(g, D nl, three entries of K, their jets b, first)`` adding three terms (writing
     them if first); then ``Ae[C, l, :] += sum_a phi_p[a, l] T[g_a, :]``, a chunk ``(C, three rows
     g_a, their jets a)`` adding three rows. Padding (K's zero entry, ``T``'s zero row) and the pattern's
     entries that are zero at this particle add exact zeros: the sums are those over the non-zero
@@ -149,17 +149,16 @@ def _add_particle_pattern(K, w, phi_p, tchunks, n_t, achunks, n_a, T, Ae):
     """
     nl = phi_p.shape[1]
     width = T.shape[1]
-    bs = Ae.shape[0]
     for c in range(n_t):
-        g, D, first = tchunks[c, 0], tchunks[c, 1], tchunks[c, 8]
+        g, base, first = tchunks[c, 0], tchunks[c, 1], tchunks[c, 8]
         k0, k1, k2 = w * K[tchunks[c, 2]], w * K[tchunks[c, 3]], w * K[tchunks[c, 4]]
         b0, b1, b2 = tchunks[c, 5], tchunks[c, 6], tchunks[c, 7]
         if first:
             for m in range(nl):
-                T[g, bs * m + D] = k0 * phi_p[b0, m] + k1 * phi_p[b1, m] + k2 * phi_p[b2, m]
+                T[g, base + m] = k0 * phi_p[b0, m] + k1 * phi_p[b1, m] + k2 * phi_p[b2, m]
         else:
             for m in range(nl):
-                T[g, bs * m + D] += k0 * phi_p[b0, m] + k1 * phi_p[b1, m] + k2 * phi_p[b2, m]
+                T[g, base + m] += k0 * phi_p[b0, m] + k1 * phi_p[b1, m] + k2 * phi_p[b2, m]
     for c in range(n_a):
         C, g0, g1, g2 = achunks[c, 0], achunks[c, 1], achunks[c, 2], achunks[c, 3]
         a0, a1, a2 = achunks[c, 4], achunks[c, 5], achunks[c, 6]
@@ -175,7 +174,7 @@ def _add_particle_first_order(K, perm, w, phi_p, T, Ae):
     entry of ``K`` taken, the jet sums written out: with few zero entries to skip this is cheaper than
     :func:`_add_particle_pattern`'s look-ups, and adds the same terms in the same order.
 
-    ``T[(C, a), bs m + D] = w sum_b K[(C, a), (D, b)] phi_p[b, m]``, then
+    ``T[(C, a), D nl + m] = w sum_b K[(C, a), (D, b)] phi_p[b, m]``, then
     ``Ae[C, l, :] += sum_a phi_p[a, l] T[(C, a), :]`` (``perm[C, a]``: kernel dof of jet ``a`` of ``C``).
     """
     bs = perm.shape[0]
@@ -187,9 +186,10 @@ def _add_particle_first_order(K, perm, w, phi_p, T, Ae):
             row = perm[C, a] * nk
             r = 3 * C + a
             for D in range(bs):
+                base = D * nl
                 k0, k1, k2 = w * K[row + perm[D, 0]], w * K[row + perm[D, 1]], w * K[row + perm[D, 2]]
                 for m in range(nl):
-                    T[r, bs * m + D] = k0 * phi_p[0, m] + k1 * phi_p[1, m] + k2 * phi_p[2, m]
+                    T[r, base + m] = k0 * phi_p[0, m] + k1 * phi_p[1, m] + k2 * phi_p[2, m]
     for C in range(bs):
         r = 3 * C
         for l in range(nl):
@@ -199,35 +199,23 @@ def _add_particle_first_order(K, perm, w, phi_p, T, Ae):
 
 
 @numba.njit(cache=True)
-def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil):
-    """Add the element matrix of one cell, ``Ae[C, l, bs m + D]``, into the CSR values (see fempm.matrix).
-    A row of the cell's functions (``k1`` of them) whose blocks follow one another in a CSR row (one rank's
-    numbering) goes in as one run of ``bs k1`` entries, a slice of each (so that the adds vectorise)."""
+def _add_to_csr(Ae, lfun_p, k1, values, indptr, stencil, offsets):
+    """Add the element matrix of one cell, ``Ae[C, l, D nl + m]``, into the CSR values (see
+    fempm.matrix); ``offsets``: room for the column offsets of one row's functions."""
     bs, nl = Ae.shape[0], Ae.shape[1]
     k = k1 - 1
     width = 2 * k + 1
-    run = bs * k1
     for l in range(nl):
         f = lfun_p[l]
         la, lb = l % k1, l // k1
-        for mb in range(k1):
-            place = (k - la) + width * (mb - lb + k)  # the row's first function's place in f's stencil
-            q = stencil[f, place]
-            consecutive = True
-            for ma in range(1, k1):
-                consecutive = consecutive and stencil[f, place + ma] == q + ma
-            for C in range(bs):
-                row = indptr[bs * f + C]
-                element = Ae[C, l]
-                if consecutive:
-                    out, part = values[row + bs * q: row + bs * q + run], element[run * mb: run * mb + run]
-                    for e in range(run):
-                        out[e] += part[e]
-                    continue
-                for ma in range(k1):
-                    base = row + bs * stencil[f, place + ma]
-                    for D in range(bs):
-                        values[base + D] += element[run * mb + bs * ma + D]
+        for m in range(nl):
+            offsets[m] = bs * stencil[f, (m % k1 - la + k) + width * (m // k1 - lb + k)]
+        for C in range(bs):
+            row = indptr[bs * f + C]
+            for m in range(nl):
+                base = row + offsets[m]
+                for D in range(bs):
+                    values[base + D] += Ae[C, l, D * nl + m]
 
 
 @numba.njit(cache=True)
@@ -254,6 +242,7 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
     width = (bs * nl + 3) // 4 * 4
     T = np.zeros((nk + 1, width))  # the last row stays zero: the pattern's padding reads it
     Ae = np.zeros((bs, nl, width))
+    offsets = np.empty(nl, dtype=np.int64)
     coords = np.zeros(12)
     pattern = np.zeros(nk * nk + 1, dtype=np.bool_)
     pattern[-1] = True
@@ -270,7 +259,7 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
         c = cell[p] if p < n else -1
         if c != cur or p == n:  # a new cell, or the end (also of no particles)
             if cur >= 0:
-                _add_to_csr(Ae, lfun[p - 1], k1, values, indptr, stencil)
+                _add_to_csr(Ae, lfun[p - 1], k1, values, indptr, stencil, offsets)
             if p == n:
                 break
             Ae[:] = 0.0

@@ -8,7 +8,7 @@ from fempm import assembly
 
 def _contract_pattern(kernels, weights, phis, perm):
     """``sum_p w_p phi_p^T K_p phi_p`` by :func:`fempm.assembly._add_particle_pattern`, the pattern grown
-    as :func:`fempm.assembly.assemble_matrix` grows it; ``Ae[C, l, bs m + D]``."""
+    as :func:`fempm.assembly.assemble_matrix` grows it; ``Ae[C, l, D nl + m]``."""
     bs, nq = perm.shape
     nk, nl = bs * nq, phis.shape[2]
     width = (bs * nl + 3) // 4 * 4
@@ -28,11 +28,11 @@ def _contract_pattern(kernels, weights, phis, perm):
 
 
 def _dense(kernels, weights, phis, perm):
-    """The same sum with numpy: ``Ae[C, l, m, D] = sum_p w_p phi[a, l] K[(C, a), (D, b)] phi[b, m]``."""
+    """The same sum with numpy: ``Ae[C, l, D, m] = sum_p w_p phi[a, l] K[(C, a), (D, b)] phi[b, m]``."""
     K = np.stack([k[np.ix_(perm.ravel(), perm.ravel())] for k in kernels])  # rows and columns by (C, a)
     bs, nq = perm.shape
     K = K.reshape(len(kernels), bs, nq, bs, nq)
-    Ae = np.einsum("p,pal,pcadb,pbm->pclmd", weights, phis, K, phis).sum(axis=0)
+    Ae = np.einsum("p,pal,pcadb,pbm->pcldm", weights, phis, K, phis).sum(axis=0)
     return Ae.reshape(bs, phis.shape[2], -1)
 
 
