@@ -505,8 +505,10 @@ def nonzero_arrays(arrays):
 
 def side_by_side(arrays) -> np.ndarray:
     """``np.concatenate(arrays, axis=1)`` of 2-D float arrays with the same rows, contiguous (numpy copies
-    narrow columns element by element)."""
+    narrow columns element by element); one contiguous array is its own (not a copy: read it only)."""
     arrays = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in arrays)
+    if len(arrays) == 1:
+        return arrays[0]
     out = np.empty((arrays[0].shape[0], sum(a.shape[1] for a in arrays)))
     _side_by_side(arrays, out)
     return out
