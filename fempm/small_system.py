@@ -80,12 +80,14 @@ def _subtract_pair(acc, corner, s0, square0, s1, square1, side, box):
 
 
 @numba.njit(cache=True)
-def _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs, pos, diag, pointer, cols, vals):
+def _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs, pos, diag, pointer, cols, vals,
+           squares):
     """CSR of ``A11 - A10 diag(A00)^-1 A01`` on the free pressure dofs ``p_dofs`` (columns by ``pos``, in
-    increasing order; entries that sum to exactly zero left out), from :func:`_block_rows`."""
+    increasing order; entries that sum to exactly zero left out), from :func:`_block_rows`; ``squares``: room for
+    each velocity row of A01 on its stencil."""
     width, box = 2 * reach + 1, 4 * reach + 1
     places = width * width
-    squares = np.zeros((u_dofs.shape[0], places))  # each velocity row of A01 on its stencil, free columns
+    squares[:] = 0.0  # each velocity row of A01 on its stencil, free columns
     for j in range(u_dofs.shape[0]):
         c = u_dofs[j]
         if c % 3 == 1 and j > 0 and u_dofs[j - 1] == c - 1:
@@ -175,9 +177,9 @@ def _reverse_cuthill_mckee(pointer, cols, order):
 
 
 @numba.njit(cache=True)
-def _band(pointer, cols, vals, order):
-    """S in band storage in ``order`` (``band[i, j - i + lower]``), its lower bandwidth, and the last
-    column of each row."""
+def _band(pointer, cols, vals, order, room):
+    """S in band storage in ``order`` (``band[i, j - i + lower]``; in ``room`` if it fits), its lower bandwidth,
+    and the last column of each row."""
     n = order.shape[0]
     at = np.empty(n, dtype=np.int64)
     at[order] = np.arange(n)
@@ -190,7 +192,9 @@ def _band(pointer, cols, vals, order):
             lower = max(lower, i - j)
             upper = max(upper, j - i)
             last[i] = max(last[i], j)
-    band = np.zeros((n, lower + upper + 1))
+    size = n * (lower + upper + 1)
+    band = room[:size].reshape((n, lower + upper + 1)) if size <= room.shape[0] else np.empty((n, lower + upper + 1))
+    band[:] = 0.0
     for old in range(n):
         i = at[old]
         for k in range(pointer[old], pointer[old + 1]):
@@ -259,7 +263,7 @@ def _functions_of(free):
 
 
 @numba.njit(cache=True)
-def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, x):
+def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, x, reals, integers):
     n = b.shape[0]
     pos = np.full(n, -1, dtype=np.int64)  # a free dof's place among its field's
     is_pressure = free % 3 == 2
@@ -270,8 +274,14 @@ def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, 
     function_at = np.full(stencil.shape[0], -1, dtype=np.int64)
     function_at[functions] = np.arange(functions.shape[0])
     places = stencil.shape[1]
-    rows = np.empty((functions.shape[0], places, 3, 3))
-    first_column, blocks = np.empty((functions.shape[0], places), dtype=np.int64), np.empty(functions.shape[0], np.int64)
+    nf, box = functions.shape[0], 4 * reach + 1
+    npr, nu = p_dofs.shape[0], u_dofs.shape[0]
+    at = np.cumsum(np.array([0, 9 * places * nf, places * nu, box * box * npr]))  # the scratch's parts
+    rows = reals[at[0]: at[1]].reshape((nf, places, 3, 3))
+    squares = reals[at[1]: at[2]].reshape((nu, places))
+    vals = reals[at[2]: at[3]]
+    first_column, cols = integers[: places * nf].reshape((nf, places)), integers[places * nf: places * nf + box * box * npr]
+    blocks = np.empty(nf, np.int64)
     _block_rows(indptr, columns, values, functions, rows, first_column, blocks)
     centre = (places - 1) // 2
     diag = np.empty(u_dofs.shape[0])
@@ -294,14 +304,12 @@ def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, 
                 diag[pos[d + C]] = rows[i, q, C, C]
                 if not (off0 if C == 0 else off1) <= DIAGONAL_SHARE * abs(rows[i, q, C, C]):
                     return NOT_DIAGONAL
-    npr = p_dofs.shape[0]
-    box = 4 * reach + 1
     pointer = np.zeros(npr + 1, dtype=np.int64)
-    cols, vals = np.empty(npr * box * box, dtype=np.int64), np.empty(npr * box * box)
-    _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs, pos, diag, pointer, cols, vals)
+    _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs, pos, diag, pointer, cols, vals,
+           squares)
     order = np.empty(npr, dtype=np.int64)
     _reverse_cuthill_mckee(pointer, cols, order)
-    band, lower, last = _band(pointer, cols, vals, order)
+    band, lower, last = _band(pointer, cols, vals, order, reals[at[3]:])
     if not _band_lu(band, lower, last):
         return ZERO_PIVOT
     x[:] = 0.0
@@ -380,5 +388,22 @@ def solve(grid_matrix, free: np.ndarray, b: np.ndarray, rtol: float, x: np.ndarr
     if space.bs != 3:
         raise ValueError(f"the compiled solve takes two velocity components and a pressure, not {space.bs} dofs a function")
     reach = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2
+    reals, integers = _scratch(len(free), lay.stencil.shape[1], 4 * reach + 1)
     return int(_solve(lay.indptr, lay.columns, grid_matrix.values, lay.stencil, space.basis.nfx, reach,
-                      np.asarray(free, dtype=np.int64), b, rtol, max_it, x))
+                      np.asarray(free, dtype=np.int64), b, rtol, max_it, x, reals, integers))
+
+
+#: the solves' scratch memory (reals, integers), kept from call to call: the same memory, still in cache, rather
+#: than new; what a solve reads of it, it has written first
+_SCRATCH = [np.empty(0), np.empty(0, dtype=np.int64)]
+
+
+def _scratch(free_dofs: int, places: int, box: int) -> list[np.ndarray]:
+    """Scratch memory for a solve of ``free_dofs`` (:data:`_SCRATCH`, grown if too small): the block rows, the
+    squares of A01, S's values and a band of twice S's stencil (a wider one is allocated), and their integers."""
+    reals, integers = free_dofs * (9 * places + places + 3 * box * box), free_dofs * (places + box * box)
+    if _SCRATCH[0].shape[0] < reals:
+        _SCRATCH[0] = np.empty(reals)
+    if _SCRATCH[1].shape[0] < integers:
+        _SCRATCH[1] = np.empty(integers, dtype=np.int64)
+    return _SCRATCH
