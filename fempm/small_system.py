@@ -399,11 +399,12 @@ _SCRATCH = [np.empty(0), np.empty(0, dtype=np.int64)]
 
 
 def _scratch(free_dofs: int, places: int, box: int) -> list[np.ndarray]:
-    """Scratch memory for a solve of ``free_dofs`` (:data:`_SCRATCH`, grown if too small): the block rows, the
-    squares of A01, S's values and a band of twice S's stencil (a wider one is allocated), and their integers."""
+    """Scratch memory for a solve of ``free_dofs`` (:data:`_SCRATCH`, grown by half again if too small, so that
+    a region that grows a little from step to step does not renew it each time): the block rows, the squares of
+    A01, S's values and a band of twice S's stencil (a wider one is allocated), and their integers."""
     reals, integers = free_dofs * (9 * places + places + 3 * box * box), free_dofs * (places + box * box)
     if _SCRATCH[0].shape[0] < reals:
-        _SCRATCH[0] = np.empty(reals)
+        _SCRATCH[0] = np.empty(reals * 3 // 2)
     if _SCRATCH[1].shape[0] < integers:
-        _SCRATCH[1] = np.empty(integers, dtype=np.int64)
+        _SCRATCH[1] = np.empty(integers * 3 // 2, dtype=np.int64)
     return _SCRATCH
