@@ -489,6 +489,7 @@ class ParticleForm:
         self._constant_names = [symbols.used_constants[c] for c in form.constants()]
         self._constant_values = None  # (array, slots): the kernel's constants, refilled at each assembly
         self._columns_of = (None, None)  # (residual, where this form's coefficients sit in its): _columns_in
+        self._slots_of = (None, None, False)  # (residual, its columns of this form's particle fields, the same): _slots_in
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
@@ -612,9 +613,8 @@ class ParticleForm:
         if alongside is not None:
             alongside[1].scatter_reverse(dolfinx.la.InsertMode.add)
         sums = residual._lumped_vector(b, particles, lfun, weight, coeffs, consts_r)
-        slots = columns[self._packing.particle_slots()]
-        shared = sums is not None and np.array_equal(slots, residual._packing.particle_slots())
-        self._lumped_matrix(target, particles, lfun, weight, coeffs, slots, consts, sums if shared else None)
+        slots, same_slots = self._slots_in(residual)
+        self._lumped_matrix(target, particles, lfun, weight, coeffs, slots, consts, sums if same_slots else None)
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return target.finalize(), b
 
@@ -649,6 +649,14 @@ class ParticleForm:
                 columns.setflags(write=False)
             self._columns_of = (residual, columns)
         return self._columns_of[1]
+
+    def _slots_in(self, residual) -> tuple[np.ndarray, bool]:
+        """This form's particle fields' columns among ``residual``'s packed coefficients (:meth:`_columns_in`), and
+        whether they are the residual's own, so that its nodal sums serve this form's too (worked out once)."""
+        if self._slots_of[0] is not residual:
+            slots = self._columns_in(residual)[self._packing.particle_slots()]
+            self._slots_of = (residual, slots, bool(np.array_equal(slots, residual._packing.particle_slots())))
+        return self._slots_of[1], self._slots_of[2]
 
     def _find_columns(self, residual) -> np.ndarray | None:
         if (not isinstance(residual, ParticleForm) or residual.rank != 1 or residual.space is not self.space

@@ -149,6 +149,7 @@ class GridSystem:
         self.linear_solver = LinearSolver(self.comm, "fempm_", controls.petsc_options, fields=self.space.fields)
         self.newton_iterations = 0
         self._R = self.space.create_vector()
+        self._R_values = self._R.array  # its view, made once (DOLFINx makes a new one at each .array)
         self._rows_marked = GridFunction(self.scalar_space, "reaction_rows")  # see _adding_to
         self._delta, self._delta_of = None, None
         self._excess, self._excess_assembled = None, False  # the wall force excess of the solve's pass
@@ -179,9 +180,9 @@ class GridSystem:
             SolveFailed: the linear solve failed, U is not finite, or Newton did not converge.
         """
         c = self.controls
-        U = self.U.vector
-        U.array[:] = 0.0
-        U.array[self.walls.positions] = self.dt * self.walls.values
+        U, u = self.U.vector, self.U.array  # the vector, and its values' view (made once)
+        u[:] = 0.0
+        u[self.walls.positions] = self.dt * self.walls.values
         U.scatter_forward()
         r0 = norm = None
         self._excess_assembled = False
@@ -203,10 +204,10 @@ class GridSystem:
             with self.timings("solve"):
                 R.petsc_vec.scale(-1.0)
                 delta = self.linear_solver.solve(J, R.petsc_vec, free, self._delta)
-                U.array[: self.space.num_owned_dofs] += delta.getArray(readonly=True)
+                u[: self.space.num_owned_dofs] += delta.getArray(readonly=True)
                 U.scatter_forward()
             self.newton_iterations += 1
-            if not np.all(np.isfinite(U.array)):
+            if not np.all(np.isfinite(u)):
                 raise SolveFailed("the solution is not finite")
             if forms.linear:
                 break
@@ -223,7 +224,7 @@ class GridSystem:
         excess = forms.wall_force_excess if self.constants["by_parts"] or self.constants["split"] else None
         if excess is None:
             excess = 0.0
-        elif self._excess_assembled and np.array_equal(rows, self.walls.normal):
+        elif self._excess_assembled and (rows is self.walls.normal or np.array_equal(rows, self.walls.normal)):
             excess = self._excess.array[rows]
         else:
             excess = excess.assemble_vector(self._adding_to(rows, particles)).array[rows]
@@ -236,7 +237,7 @@ class GridSystem:
             whole = self._delta_of.createVecLeft()
             self._delta_of.mult(self._delta, whole)
             product = whole.getArray(readonly=True)[rows]
-        return product - self._R.array[rows] - excess
+        return product - self._R_values[rows] - excess
 
     def _excess_alongside(self, forms: StepForms, particles):
         """Where the solve's pass assembles the wall force excess that :meth:`reaction` subtracts at the contact

@@ -298,8 +298,8 @@ class Walls:
         return flag.values > 0.5
 
     def keep_inside(self, x: np.ndarray) -> np.ndarray:
-        """Positions ``x`` stopped at the impermeable sides; with ``recycle``, a particle that left
-        through the left or right side brought in through the other.
+        """Positions ``x`` stopped at the impermeable sides (in place; returned); with ``recycle``, a particle that
+        left through the left or right side brought in through the other.
 
         The interpolated displacement of a cell next to a wall cannot decelerate within the cell,
         so at large steps or hard impacts it may carry a particle a little past the wall: it is
@@ -313,10 +313,7 @@ class Walls:
             width = grid.upper[0] - grid.lower[0]
             x[:, 0] = grid.lower[0] + np.mod(x[:, 0] - grid.lower[0], width)
         low, high = self._inside
-        stopped = _count_outside(x, low, high)
-        if stopped:
-            self.stops += stopped
-            x = np.clip(x, low, high)
+        self.stops += _stop_outside(x, low, high)
         if self._obstacles:
             self.stops += _stop_at_obstacle_faces(x, grid.lower, grid.h, grid.nx, grid.ny, grid.blocked,
                                                   1e-9 * grid.h)
@@ -356,12 +353,18 @@ def _stop_at_obstacle_faces(x, lower, h, nx, ny, blocked, margin):
 
 
 @numba.njit(cache=True)
-def _count_outside(x, low, high):
-    """The points ``x`` ``(n, 2)`` below ``low`` or above ``high`` in a coordinate (NaN is neither)."""
+def _stop_outside(x, low, high):
+    """The points ``x`` ``(n, 2)`` below ``low`` or above ``high`` in a coordinate (NaN is neither) moved there, in
+    place (as ``np.clip``); returns how many."""
     count = 0
     for p in range(x.shape[0]):
-        if x[p, 0] < low[0] or x[p, 0] > high[0] or x[p, 1] < low[1] or x[p, 1] > high[1]:
-            count += 1
+        outside = False
+        for d in range(2):
+            if x[p, d] < low[d]:
+                x[p, d], outside = low[d], True
+            elif x[p, d] > high[d]:
+                x[p, d], outside = high[d], True
+        count += outside
     return count
 
 
