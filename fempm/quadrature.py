@@ -489,7 +489,7 @@ class ParticleForm:
         self._constant_names = [symbols.used_constants[c] for c in form.constants()]
         self._constant_values = None  # (array, slots): the kernel's constants, refilled at each assembly
         self._columns_of = (None, None)  # (residual, where this form's coefficients sit in its): _columns_in
-        self._slots_of = (None, None, False)  # (residual, its columns of this form's particle fields, the same): _slots_in
+        self._slots_of = (None, None, False)  # (residual, this form's particle fields' columns in it, same?): _slots_in
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form

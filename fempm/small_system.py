@@ -280,7 +280,8 @@ def _solve(indptr, columns, values, stencil, nfx, reach, free, b, rtol, max_it, 
     rows = reals[at[0]: at[1]].reshape((nf, places, 3, 3))
     squares = reals[at[1]: at[2]].reshape((nu, places))
     vals = reals[at[2]: at[3]]
-    first_column, cols = integers[: places * nf].reshape((nf, places)), integers[places * nf: places * nf + box * box * npr]
+    first_column = integers[: places * nf].reshape((nf, places))
+    cols = integers[places * nf: places * nf + box * box * npr]
     blocks = np.empty(nf, np.int64)
     _block_rows(indptr, columns, values, functions, rows, first_column, blocks)
     centre = (places - 1) // 2
@@ -386,7 +387,8 @@ def solve(grid_matrix, free: np.ndarray, b: np.ndarray, rtol: float, x: np.ndarr
     """
     lay, space = grid_matrix.layout, grid_matrix.space
     if space.bs != 3:
-        raise ValueError(f"the compiled solve takes two velocity components and a pressure, not {space.bs} dofs a function")
+        raise ValueError(f"the compiled solve takes two velocity components and a pressure, not {space.bs} dofs "
+                         "a function")
     reach = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2
     reals, integers = _scratch(len(free), lay.stencil.shape[1], 4 * reach + 1)
     return int(_solve(lay.indptr, lay.columns, grid_matrix.values, lay.stencil, space.basis.nfx, reach,
