@@ -31,6 +31,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fempm.schur import _subtract_pair
+
 __all__ = ["DIAGONAL_SHARE", "NOT_CONVERGED", "NOT_DIAGONAL", "ZERO_PIVOT", "solve"]
 
 #: statuses of :func:`solve` other than the iterations taken
@@ -67,16 +69,6 @@ def _block_rows(indptr, columns, values, functions, rows, first_column, blocks):
             for D in range(3):
                 for C in range(3):
                     rows[i, q, D, C] = values[k0 + C * length + 3 * q + D]
-
-
-@numba.njit(cache=True, inline="always")
-def _subtract_pair(acc, corner, s0, square0, s1, square1, side, box):
-    """``acc -= s0 square0``, then ``acc -= s1 square1``, entry by entry in one pass (as the two in turn)."""
-    for dy in range(side):
-        row = corner + box * dy
-        for dx in range(side):
-            a = acc[row + dx] - s0 * square0[side * dy + dx]
-            acc[row + dx] = a - s1 * square1[side * dy + dx]
 
 
 @numba.njit(cache=True)
@@ -119,7 +111,7 @@ def _schur(rows, first_column, function_at, stencil, nfx, reach, p_dofs, u_dofs,
             a0, a1 = rows[i, q, 0, 2], rows[i, q, 1, 2]
             if reach == 2 and pos[c0] >= 0 and a0 != 0.0 and pos[c0 + 1] >= 0 and a1 != 0.0:
                 # the quadratic B-spline's, as constants: the loops unroll
-                _subtract_pair(acc, corner[place], a0 / diag[pos[c0]], squares[pos[c0]], a1 / diag[pos[c0 + 1]],
+                _subtract_pair(acc, corner[place], a0 / diag[pos[c0]], a1 / diag[pos[c0 + 1]], squares[pos[c0]],
                                squares[pos[c0 + 1]], 5, 9)
                 continue
             for D in range(2):
