@@ -17,7 +17,9 @@ break; 40:100:300:4 gives 3200, the scene until its particles were shifted). ``-
 DIR); ``--page`` writes the tables into a Markdown page (``benchmarks/templates/speed-step.md``).
 ``--interfoam``: in every round of a 40² case also OpenFOAM's interFoam on the same tank at 40² to 2 s of
 flow (``benchmarks/interfoam.py``), whose time a step measures the machine in the same run: issue 12's
-2.5 ms at 800 particles was set where interFoam took 2.2 s for its 571 steps (3.85 ms a step).
+2.5 ms at 800 particles was set where interFoam took 2.2 s for its 571 steps (3.85 ms a step). The table gives
+each version's step over interFoam's twice: the ratio of the medians, and the median of each round's ratio (the
+round's step over the same round's interFoam), which a load that drifts from round to round moves less.
 """
 
 from __future__ import annotations
@@ -139,9 +141,12 @@ def compare(case: tuple[int, ...], versions: dict, rounds: int, with_interfoam: 
                     f"(wall), {cpu:.3f} (CPU)")
         for name in versions:
             table[name]["interfoam"] = table[name]["step cpu"] / cpu
-        keys.append("interfoam")
+            # each round's step over that round's interFoam: a load that drifts between rounds cancels
+            table[name]["interfoam paired"] = median([r["step cpu"] / f[1] for r, f in zip(results[name], foam)])
+        keys += ["interfoam", "interfoam paired"]
     label = {"step cpu": "step, CPU", "step wall": "step, wall", "rest": "rest (Python between phases)",
              "interfoam": "step, CPU, over interFoam 40²'s (issue 12: 2.5 / 3.85 = 0.65)",
+             "interfoam paired": "the same, each round's over its interFoam's, the median",
              **{k: f"solve: {k} (wall)" for k in EVENTS}}
     rows = []
     for k in keys:
