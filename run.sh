@@ -30,10 +30,10 @@ setup() {
     "$py" -m venv .venv
     .venv/bin/python -m pip install --quiet --upgrade pip
   fi
-  # reinstall when pyproject.toml changed since the last install
-  if [[ ! -f .venv/.fempm-installed || pyproject.toml -nt .venv/.fempm-installed ]]; then
-    echo "run.sh: installing fempm and its dependencies into .venv"
-    .venv/bin/python -m pip install --quiet -e ".[test]"
+  # reinstall when pyproject.toml or the pinned versions (constraints.txt) changed since the last install
+  if [[ ! -f .venv/.fempm-installed || pyproject.toml -nt .venv/.fempm-installed || constraints.txt -nt .venv/.fempm-installed ]]; then
+    echo "run.sh: installing fempm and its dependencies into .venv (the versions of constraints.txt)"
+    .venv/bin/python -m pip install --quiet -c constraints.txt -e ".[test]"
     touch .venv/.fempm-installed
   fi
   export PATH="$PWD/.venv/bin:$PATH"
