@@ -43,6 +43,9 @@ WINDOW = (0.3, 0.6)
 SMOOTHING = 0.02  #: s, the moving mean the noise is measured against
 MAIN_PROBE = "right_y0.005"
 TOP_PROBE = "right_y0.0584"  #: the highest right-wall probe, where the run-up arrives last
+#: Courant numbers beside the shipped 0.8: the gauges' means at one step move with the last bits of a run, so
+#: issue 11's targets are also measured on their average over these (:func:`nearby`)
+NEARBY_COURANT = (0.78, 0.79, 0.8, 0.81, 0.82)
 #: the runs of the page: key, label, scene changes
 STUDY = [
     ("default", "default (2 × 2 per cell, adaptive step: Courant 0.8, dt ≤ 1e-2; α 0.1 surface-aware, affine-FLIP, "
@@ -150,6 +153,24 @@ def run(changes: dict | None = None, end_time: float = WINDOW[1], build=build_so
     return result, table
 
 
+def nearby(changes: dict | None = None, courants=NEARBY_COURANT, end_time: float = WINDOW[1]) -> dict:
+    """The right-wall gauges at each Courant number of ``courants`` (the scene changed by ``changes``): per probe its
+    measures run by run, and the average over the runs of the mean against interFoam 160² and of the noise."""
+    runs = [run({**(changes or {}), "time.courant": c}, end_time)[0] for c in courants]
+    out = {}
+    for name in runs[0]["probes"]:
+        if not name.startswith("right_"):
+            continue
+        each = [r["probes"][name]["fempm"] for r in runs]
+        out[name] = {"courant": list(courants), "runs": each,
+                     "mean_vs_interfoam": float(np.mean([m["mean_vs_interfoam"] for m in each])),
+                     "noise": float(np.mean([m["noise"] for m in each])),
+                     "lowest_over_rhogL": float(min(m["min_window_over_rhogL"] for m in each)),
+                     "dry_in_window": int(sum(m["dry_in_window"] for m in each)),
+                     "completed": all(r["status"] == "completed" for r in runs)}
+    return out
+
+
 def _front_difference(front: np.ndarray) -> float | None:
     """The front's RMS relative difference from interFoam 160² over 0.3 < T <= 3 (None: the run ends before)."""
     measures = dambreak.front_measures(references.dimensionless_front(front[:, 0], front[:, 1]))
@@ -219,6 +240,12 @@ def page(end_time: float, study=STUDY):
     folder.mkdir(parents=True, exist_ok=True)
     labels = {key: label for key, label, _ in study}
     plot(folder / "gauges.png", [(labels[k], tables[k]) for k in ("default", "unshifted") if k in tables])
+    spread = nearby()
+    nearby_rows = [[f"`{name}`", *(_fmt(m["mean_vs_interfoam"], "+.1%") + " / " + _fmt(m["noise"], ".1%") for m in g["runs"]),
+                    _fmt(g["mean_vs_interfoam"], "+.1%") + " / " + _fmt(g["noise"], ".1%"), _fmt(g["lowest_over_rhogL"], ".3f")]
+                   for name, g in spread.items()]
+    nearby_table = pages.table(["probe", *(f"Courant {c:g}" for c in NEARBY_COURANT), "average", "lowest min/ρgL"],
+                               nearby_rows)
     main = {k: r["probes"][MAIN_PROBE]["fempm"] for k, r in results.items()}
     variants = [[labels[k], r["status"] + (f" at t = {r['time']:.3f} s" if r["status"] != "completed" else ""),
                  _fmt(main[k].get("noise"), ".1%"), _fmt(main[k].get("mean_vs_interfoam"), "+.1%"),
@@ -233,6 +260,7 @@ def page(end_time: float, study=STUDY):
     text = pages.fill(
         "wall-pressure.md", **pages.provenance(), command="python benchmarks/wall_pressure.py --page", end=f"{end_time:g}",
         table=pages.table(HEAD, rows_of(results["default"], "default") + rows_of(results["unshifted"], "no shifting")),
+        nearby=nearby_table,
         variants=pages.table([f"run ({MAIN_PROBE})", "outcome", "noise", "mean vs interFoam", "min/ρgL (window)",
                               "min/ρgL (run)", "peak (Pa)", "front vs interFoam (T ≤ 3)", "wall time (s)"],
                              variants),

@@ -102,3 +102,19 @@ def test_every_right_wall_gauge_of_the_shipped_scene_meets_issue_11():
     # now: 1.6 %, -2.2 %, 0.743; 2 x 2 unshifted at Courant 0.5: 11.8 %, +4.4 %, 0.608)
     assert probes["right_y0.005"]["min_window_over_rhogL"] > 0.70
     assert result["front_vs_interfoam"] < 0.0195  # measured 1.87 % (the split 1.79 %; issue 11: 2.5 %)
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="five runs, serial")
+def test_the_right_wall_gauges_meet_issue_11_on_average_over_nearby_steps():
+    """Issue 11's gauge targets on the average over the shipped scene at Courant 0.78-0.82: where the run-up reaches
+    the wall the flow is chaotic, and one run's mean at the highest gauge moves by a few points with its last bits
+    (docs/wall-pressure.md, the nearby steps' table)."""
+    spread = wall_pressure.nearby()
+    print({name: (g["mean_vs_interfoam"], g["noise"], g["lowest_over_rhogL"]) for name, g in spread.items()})
+    assert len(spread) == 4 and all(g["completed"] and g["dry_in_window"] == 0 for g in spread.values())
+    # measured -1.40 / -1.12 / -2.65 / -8.43 % (the highest: -6.0 / -9.4 / -9.1 / -8.7 / -9.0 % run by run); issue 11: 10 %
+    assert max(abs(g["mean_vs_interfoam"]) for g in spread.values()) < 0.10
+    # measured 1.37 / 1.42 / 1.77 / 4.16 % (the highest: 5.2 / 3.3 / 3.1 / 6.0 / 3.2 % run by run); issue 11: 5 %
+    assert max(g["noise"] for g in spread.values()) < 0.05
+    # measured 0.362 rho g L at the lowest; issue 11: above -0.05
+    assert min(g["lowest_over_rhogL"] for g in spread.values()) > 0.3
