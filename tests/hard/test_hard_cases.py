@@ -17,12 +17,10 @@ import pytest
 from fempm.cases import hard as hc
 
 SHORT_AND_FULL = [False, pytest.param(True, marks=pytest.mark.full)]
-#: the bounds below sit a small margin above what was measured: the short versions on this code
-#: (tests/hard -s prints them), the full ones from docs/hard-cases.md (three digits) where they differ.
-#: Both were re-measured on the end-of-step forms (forms/incompressible.py, end_map) with the default
-#: affine-FLIP transfer and one-sided walls; beside them "before" (start configuration's divergence),
-#: "affine" (affine-FLIP, two-sided walls) and "FLIP/PIC" (the seed's, two-sided walls). Some full
-#: bounds are still those of FLIP/PIC where the new values lie inside them.
+#: the bounds below sit a small margin above what was measured: the short versions on this code (tests/hard -s
+#: prints them), the full ones from docs/hard-cases.md where they differ. Where a measure moves with the last bits
+#: (a splash's speed or energy) the comment says by how much; earlier codes' figures are in git's history of this
+#: file and in docs/notes-accuracy.md.
 EXACT = 1e-9  # E_max - 1 where the energy never rose above its start (measured 1.0000000)
 #: the dam break's water spread over the floor: its area over the tank's width
 SETTLED_DEPTH = hc.dambreak.WIDTH * hc.H / hc.TANK
@@ -63,35 +61,20 @@ def bound(full: bool, short: float, long: float) -> float:
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
 def test_dam_break_at_ten_times_the_seeds_step(full):
-    """dt = 1e-2 s: the advective CFL max |v| dt / h reaches 2.9 (at the seed's step 0.33); walls
+    """dt = 1e-2 s: the advective CFL max |v| dt / h reaches 3.2 (at the seed's step 0.39); walls
     stop displacements that would cross them. The energy error of the big step shows (3–6 % of
-    the start regained in the sloshing, at one splash, which round-off moves; 13 % with the start
-    configuration's divergence) but stays bounded, and the volume holds."""
+    the start regained in the sloshing, at one splash, which round-off moves) but stays bounded,
+    and the volume holds."""
     o = measured("dt-10x", full)
-    # measured 1.875, 1.0, 0.0284 with G2P over the moved functions (2.040, 1.0, 0.0273 over all of them): the
-    # fastest particle is a splash's, chaotic in the step: at 1/105 ... 1/90 s 1.93-2.04 and 0.025-0.033 (before
-    # 1.82-2.23 and 0.025-0.053), while at 1/110 s a drop landing at 3.5 cells a step was thrown off at 29 m/s and
-    # the energy check stopped the run at 1.42 s (README, departures table). FLIP/PIC: 2.713, 1.01225, 0.0845
-    # with the last step's pressure by parts (the scene's since 2026-11-30) the known pressure's share falls to zero
-    # from a step Courant number of 2 (fempm.hydrostatic.LAST_PRESSURE_COURANT): taken whole, the energy grew at the
-    # wall impact and the energy check stopped this run at 0.30 s; measured 1.980, 1.0, 0.0309
-    # with the compiled solve of small systems (fempm.small_system, 2026-11-30; the same solutions to 3e-13) 1.980, 1.0,
-    # 0.0560: the energy's largest rise is one splash's, and round-off moves it. At dt = 1/105, 1/100, 1/95, 1/90 s
-    # the compiled solve gives 0.0280 / 0.0560 / 0.0332 / 0.0353 (speeds 2.18 / 1.98 / 1.93 / 1.72), PETSc's split
-    # 0.0733 / 0.0309 / 0.0332 / 0.0353 (2.79 / 1.98 / 1.93 / 1.72): the bound of 0.037 held in one of those runs
+    # measured 1.980, 1.0, 0.0560 (2 s and 4 s): the fastest particle and the energy's largest rise are one splash's,
+    # which the last bits move (at dt = 1/105, 1/100, 1/95, 1/90 s: rises 0.028 / 0.056 / 0.033 / 0.035, speeds 2.18 /
+    # 1.98 / 1.93 / 1.72)
     assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.06)
-    # measured 3.356 (with tau's T = max(dt, ...) 2.936 (crowding only 2.918; before the crowding tolerance 4.088; start-configuration divergence 3.197)
+    # measured 3.226
     assert o.max_cfl > 2.8
-    # measured 1.140 (2 s) with the last step's pressure by parts and turning shifts (the scene's since 2026-11-30: the
-    # water less damped at this step, still sloshing and throwing spray at 2 s; 1.085 with the compiled solve of small
-    # systems, whose last bits differ); 1.100 (2 s) with PSPG's displacement bounded; 1.105 (2 s; 1.100 at 4 s) with tau free of the step (with T = max(dt, ...) 1.095), the scene's particle
-    # shifting, the water still sloshing (without 1.015; crowding only
-    # 0.975 (2 s), 1.02 (4 s); before the crowding tolerance 0.990 (2 s); from a_0 = 0 0.985); FLIP/PIC
-    # 0.915 (2 s)
+    # measured 1.085 (2 s), 1.055 (4 s): the water still sloshing, throwing spray
     assert 0.88 <= cell_ratio(o) <= 1.16
-    # the walls act: measured 641 (2 s, surface-aware); crowding only 455 (2 s), 498 (4 s) (before the crowding
-    # tolerance 567, 674; 604 with PSPG's viscous
-    # part, negligible for water here, built; from a_0 = 0 553); FLIP/PIC 1332 (2 s), 1618 (4 s)
+    # the walls act: measured 3910 (2 s), 4148 (4 s)
     assert o.wall_stops >= 430
 
 
@@ -104,9 +87,8 @@ def test_at_twenty_times_the_seeds_step_the_eruption_is_diagnosed(full):
     chance: either the energy check stops the run with its diagnosis, or the run ends finite with the
     energy regained under the limit, with its mass."""
     o = measured("dt-20x", full)
-    # measured: stopped at 0.62 s, a rise of 0.098 (12 % at the check) with G2P over the moved functions; at 1/55 and
-    # 1/45 s completed (0.070) and stopped at 0.47 s. Before: completed, 0.0898; at 1/55 and 1/45 s stopped at 0.75
-    # and 0.71 s. The whole PIC share alone (100/s): stopped at 0.52 s
+    # measured: stopped by the energy check at 0.48 s, a rise of 0.092; in divergence form the run completes regaining
+    # 0.093 (docs/hard-cases-divergence.md); earlier codes ended either way at 18, 20 and 22 ms
     if o.run.status == "stopped":
         assert o.run.cause.startswith("energy growth") and o.run.time >= 0.4
     else:
@@ -117,28 +99,15 @@ def test_at_twenty_times_the_seeds_step_the_eruption_is_diagnosed(full):
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
 def test_dam_break_of_water(full):
     """mu = 1e-3 Pa s at the seed's step: the fastest particle is the
-    run-up jet at the right wall (t = 0.28 s), 2.25 times free fall from the column's top."""
+    run-up jet at the right wall (t = 0.28 s), 2.4 times free fall from the column's top."""
     o = measured("water", full)
-    # measured 2.412, 1.0, 0.0015 at 0.6 s with the last step's pressure by parts and turning shifts (the scene's since
-    # 2026-11-30: a faster run-up jet, the energy still never above the start; 2.23 with the split);
-    # 2.279, 1.0, 0.0018 at 0.6 s with G2P over the moved functions; 2.250, 1.0, 0.0016 with the default shares (whole 30/s, then the noise's 300/s: the less
-    # damped jet runs faster, the energy still never above the start); 2.104, 1.0, 0.0018 at 0.6 s with the scene's particle shifting: the energy no longer rises at the
-    # impact; without it 2.018, 1.0076, 0.0084 at 0.6 s and 2 s (before the crowding tolerance 2.022, 1.0082, 0.0085 and
-    # 2.02, 1.008, 0.009; from a_0 = 0: 2.025 and 2.085,
-    # 1.0083, 0.0086; start-configuration divergence 2.109, 1.0153, 0.0159; FLIP/PIC 1.782, 1.0, 6.3e-5): the
-    # affine-FLIP transfer's energy rises by 0.8 % of the start at the wall impact, where FLIP/PIC's only fell
+    # measured 2.412, 1.0, 0.0015 (0.6 s; 0.002 to 2 s): the run-up jet, faster than the split's 2.23 (README, Known
+    # limits); the energy never above the start
     assert_sound(o, 800, speed_ratio=bound(full, 2.5, 2.5), energy_max=1.0 + bound(full, 0.009, 0.009),
                  energy_rise=bound(full, 0.0095, 0.0095))
-    # measured 1.215 (0.6 s), 1.16 (2 s) with the scene's particle shifting (without 1.225, 1.17; from a_0 = 0: 1.215,
-    # 1.18); FLIP/PIC 1.16 (0.6 s), 1.10 (2 s)
+    # measured 1.195 (0.6 s and 2 s)
     assert 1.09 <= cell_ratio(o) <= 1.25
-    # measured 89 (0.6 s) with the last step's pressure by parts and turning shifts (the scene's since 2026-11-30);
-    # 61 (0.6 s), 156 (2 s) with the walls letting go within the step where they pull hard (fempm.walls; 435
-    # lagged) and the scene's particle shifting, whose moves cut at a wall count too
-    # (without 61, 193; before the crowding tolerance 50, 81; from a_0 = 0: 52, 175); FLIP/PIC 0. After 0.6 s the
-    # count moves by hundreds with any small change of the scheme: 347 before still water's PIC share, 124 without
-    # it, 168 and 275 with it ramped in over the time at rest; 0 and 48 to 3 s with a PIC share of 95 or 105 /s (letting
-    # go within the step: 0 and 531)
+    # measured 89 (0.6 s), 174 (2 s); after 0.6 s the count moves by hundreds with any small change of the scheme
     assert o.wall_stops <= bound(full, 100, 500)
 
 
@@ -148,15 +117,10 @@ def test_dam_break_of_a_very_viscous_fluid(full):
     velocity block far more than water's, and the column slumps slower (no jet: the speed
     stays near free fall's)."""
     o = measured("viscous", full)
-    # measured 1.150, 1.0, 0 with the default shares (whole 30/s, then the noise's 300/s); 1.124 with the whole
-    # share alone (100/s) and the scene's particle shifting
+    # measured 1.134, 1.0, 0
     assert_sound(o, 800, speed_ratio=1.17, energy_max=1.0 + bound(full, EXACT, 1e-4),
                  energy_rise=bound(full, EXACT, 1e-4))
-    # (without 1.0648, 1.0, 0: the fastest particle, at the impact on the right wall, 14 % faster; before the
-    # crowding tolerance 1.0722; from a_0 = 0 1.0783; FLIP/PIC 1.059)
-    # measured 1.065 (0.6 s), 1.005 (3 s: the layer flat, nearly the column's 200 cells) with the scene's particle
-    # shifting (without 1.095, 1.07; before the crowding tolerance 1.090, 1.07; from a_0 = 0: 1.090); FLIP/PIC
-    # 1.055 (0.6 s), 1.06 (3 s)
+    # measured 1.085 (0.6 s), 1.000 (3 s: the layer flat, the column's 200 cells)
     assert bound(full, 1.05, 0.99) <= cell_ratio(o) <= 1.10
 
 
@@ -165,16 +129,11 @@ def test_dam_break_onto_an_obstacle(full):
     """scenes/obstacle.toml: the surge hits a block, splashes over it in a thin sheet and
     isolated particles; none enters the block (that would stop the run), none is lost."""
     o = measured("obstacle", full)
-    # measured 2.553, 1.0, 0.0023 with the noise's linear fit (2.522, 1.0, 7.5e-5 with its mean); with G2P over the
-    # moved functions (2.88, 1.0, 0.0013 over all of them; before the
-    # crowding tolerance 2.923, 1.0001, 0.0011): a wave landing on the thin layer that flows back along the floor
-    # squeezes out a jet (6.89 m/s at 2.899) (from a_0 = 0: 2.427, 1.00009, 0.0014; start-configuration divergence
-    # 2.405, 1.00048, 0.0037; FLIP/PIC 1.562)
+    # measured 2.553, 1.0, 0.0023 (0.6 s and 2 s): a wave landing on the thin layer that flows back along the floor
+    # squeezes out a jet
     assert_sound(o, 800, speed_ratio=2.93, energy_max=1.0 + bound(full, 6e-4, 6e-4),
                  energy_rise=bound(full, 0.004, 0.004))
-    # measured 1.245 (0.6 s) with the noise's linear fit, which leaves the splash's sheet more of its own motion
-    # (1.200 with its mean); 1.235 (0.6 s), 1.145 (2 s) before G2P over the moved functions (before the crowding
-    # tolerance 1.225, 1.185; from a_0 = 0: 1.235); FLIP/PIC 1.06 (0.6 s), 1.125 (2 s)
+    # measured 1.245 (0.6 s), 1.155 (2 s)
     assert 1.05 <= cell_ratio(o) <= 1.26
     assert not o.solver.grid.blocked[o.solver.particles.cell].any()
 
@@ -199,18 +158,16 @@ def test_a_single_particle_falls_freely_and_comes_to_rest_on_the_floor(full):
     material, and G2P takes its values over the others: taken at their zero, they pulled it back by 2 %),
     then stops on the slip floor and stays there."""
     o = measured("single-particle", full)
-    # measured 0.984, 1.0, 0 (0.969 with G2P over all functions)
+    # measured 0.984, 1.0, 0
     assert_sound(o, 1, speed_ratio=0.99, energy_max=1.0 + EXACT, energy_rise=EXACT)
-    # measured 1.0e-6 with G2P over the moved functions (0.0190 over all of them; the whole share alone at 100/s: 0.00736)
+    # measured 1.0e-6
     assert free_fall_error(o, hc.SINGLE[0, 1]) <= 5e-6
     x, y = o.history["centroid"][-1]
     assert x == pytest.approx(hc.SINGLE[0, 0], abs=1e-12)  # nothing pushes it sideways
-    # the one-sided floor leaves it at rest on the floor: measured 8.6e-6 m (6e-4 of a cell) and 2e-17 m/s at 0.5 s
-    # (6.5e-6 m and 6e-19 m/s with G2P over all functions; the whole share alone at 100/s: 1.5e-11 m and 7.4e-10 m/s;
-    # affine, two-sided: 4.5e-5 m, 3.2e-4 m/s)
+    # the one-sided floor leaves it at rest on the floor: measured 8.6e-6 m (6e-4 of a cell) and 1.8e-17 m/s at 0.5 s
     assert 0 <= y <= bound(full, 1e-5, 0.5 * hc.h)  # m
     assert o.history["max_speed"][-1] <= bound(full, 1e-8, 1e-2)  # m/s
-    assert o.cells_final == 1 and o.wall_stops <= 1  # measured 1 (FLIP/PIC 0): stopped once at the floor
+    assert o.cells_final == 1 and o.wall_stops <= 1  # measured 0 (earlier codes 1: stopped once at the floor)
 
 
 @pytest.mark.parametrize("full", SHORT_AND_FULL)
@@ -222,23 +179,16 @@ def test_a_sparse_cloud_falls_freely_and_lands(full):
     -53 kPa) that throws one out; at dt 9e-4 s and 1.1e-3 s a particle leaves at 2.5-3.6 m/s
     (the energy check stops the second)."""
     o = measured("sparse-cloud", full)
-    # measured 0.988, 1.0, 0.0092 with the noise's linear fit (2 s: 0.988, 1.0, 0.0092); 1.029, 1.0, 0.0080 with the walls letting go within the step where they pull hard (fempm.walls); 1.031, 1.0, 0.0078 (before the crowding tolerance 0.0107; from a_0 = 0: 1.030, 1.0, 0.0237; start-configuration divergence 1.046,
-    # 1.0, 0.0094; FLIP/PIC 0.865, 1.0, 0.0025 (0.6 s), 0.004 (2 s)); the full version was not rerun with the
-    # end-of-step forms
+    # measured 0.988, 1.0, 0.0092 (0.6 s and 2 s)
     assert_sound(o, len(hc.SPARSE), speed_ratio=1.05, energy_max=1.0 + EXACT,
                  energy_rise=bound(full, 0.012, 0.025))
-    # measured 0.00016 with G2P over the moved functions (0.00056 over all of them; the whole share alone at 100/s:
-    # 0.00036): the particles of the cloud's edge lean on functions held for want of material
+    # measured 0.00016: the particles of the cloud's edge lean on functions held for want of material
     assert free_fall_error(o, hc.SPARSE[:, 1].min()) <= 0.0002
-    # m, 1.6 h; measured 0.0227 (0.6 s; 0.0151 at 2 s) with PSPG's tau free of the step (with tau's T = max(dt, ...)
-    # 0.0187; before the crowding tolerance 0.0217; affine 0.0171); FLIP/PIC 0.0165 (0.6 s), 0.0154 (2 s)
+    # m, 1.6 h; measured 0.0204 (0.6 s), 0.0156 (2 s)
     assert o.surface_height <= 0.0235
-    # m; 0.0197 at 0.6 s with the noise's linear fit, the layer settling later and lower (0.0100 at 1 s, 0.0084 at
-    # 2 s); 0.0174 at 0.6 s with its mean and the walls letting go within the step (0.0167 lagged; before the
-    # crowding tolerance 0.0157, FLIP/PIC 0.0165)
+    # m; measured 0.0197 at 0.6 s, the layer still settling
     assert o.history["centroid"][-1, 1] <= bound(full, 0.0210, 2 * hc.h)
-    # measured 0.0926 at 0.6 s with the noise's linear fit, the layer settling later (its centroid above); 0.0806 at 0.6 s
-    # with its mean and the walls letting go within the step (0.0682 lagged: the held walls took more); (before the crowding tolerance 0.0754; from a_0 = 0 0.0609, before that 0.0764; FLIP/PIC 0.0486): the layer still moves
+    # measured 0.0926 at 0.6 s: the layer still moves
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.1, 0.1)
 
 
@@ -250,13 +200,10 @@ def test_water_driven_into_a_corner(full):
     not an oscillation: the run goes on), jets along both walls and falls back into the
     corner. The energy only falls."""
     o = measured("corner", full)
-    # 20 x 20 particles; measured 1.739, 1.0, 0.00132 with the scene's particle shifting (without 1.880, 1.0, 0.00114;
-    # before the crowding tolerance 1.902, 1.0, 0.00231; affine 1.903, 1.0, 0.0021; FLIP/PIC 1.869, 1.0, 0)
-    # (3 s: 0.0047 with PSPG's tau free of the step, its transient time 0.96 ms here, not the step's 1 ms: 0.0010)
+    # 20 x 20 particles; measured 1.794, 1.0, 0.0024 (0.5 s), 0.002 (3 s)
     assert_sound(o, 400, speed_ratio=1.91, energy_max=1.0 + bound(full, EXACT, 1e-4),
                  energy_rise=bound(full, 0.0024, 0.0050))
-    # measured 1.591 with the shifting (without 1.536; 0.5 s; 1.018 at 3 s; from a_0 = 0 1.491; start-configuration
-    # divergence 1.455); FLIP/PIC 1.273 (0.5 s), 0.99 (3 s)
+    # measured 1.564 (0.5 s), 1.045 (3 s)
     assert 0.98 <= cell_ratio(o) <= 1.60
     # the centroid's distance from the corner along gravity: 2/3 of the depth sqrt(A) of the
     # right-angled triangle of area A the water settles into
@@ -272,42 +219,20 @@ def test_a_long_run_settles_with_its_volume(full):
     at 1e-3 s with --full (method.md Fig. 4). The water ends as a layer as deep as the column's
     area over the floor's width (73 mm)."""
     o = measured("long", full)
-    if full:  # the energy hardly rises (0.3 % of the start's)
-        # measured 2.104, 1.0, 0.0070 with the scene's particle shifting (without 2.085, 1.0083, 0.0086; FLIP/PIC,
-        # two-sided walls: 1.78, 1.000, 0.004)
-        # measured 0.003 over 40 s with the walls letting go within the step where they pull hard (fempm.walls; 0.0018
-        # and 0.0030 to 3 s with a PIC share of 105 or 95 /s). Lagged by a step, the wall held the wave falling back from
-        # it at 2.59 s with 209 cells' weight, and the energy jumped by 0.0105 within two steps (0.0040 to 0.0068 to 3 s
-        # across such variants)
-        # measured 2.280, 1.0, 0.0020 to 40 s with G2P over the moved functions (2.250, 1.0, 0.003 with the default
-        # shares, docs/hard-cases.md): its first 2 s are test_dam_break_of_water's, whose jet this is
-        # with the hydrostatic pressure's work split off: the energy's largest rise 0.0066 over 40 s; 2.412, 1.0, 0.0016
-        # with the last step's pressure by parts and turning shifts (the scene's since 2026-11-30; the faster jet of
-        # test_dam_break_of_water)
+    if full:  # the energy hardly rises: measured 2.412, 1.0, 0.002 over 40 s (its first 2 s are
+        # test_dam_break_of_water's, whose jet this is)
         assert_sound(o, 800, speed_ratio=2.5, energy_max=1.0 + 0.009, energy_rise=0.008)
     else:  # the big step's energy error: the first 2 s are test_dam_break_at_ten_times_the_seeds_step's
         assert_sound(o, 800, speed_ratio=2.1, energy_max=1.0 + EXACT, energy_rise=0.06)
     t, centroid = o.history["t"], np.asarray(o.history["centroid"])
-    if full:  # the layer's surface after 40 s, at one instant of a layer still sloshing: 73.5 mm with the compiled solve
-        # of small systems (2026-11-30), 65.8 mm with the last step's
-        # pressure by parts and turning shifts (the scene's since 2026-11-30), 72.8 mm with the split, 74.4 mm before
-        # (docs/hard-cases.md; 66.7-76.8 mm on earlier codes): it moves with round-off, the mean below does not
+    if full:  # the layer's surface after 40 s, at one instant of a layer still sloshing: measured 73.5 mm; it moves
+        # with round-off (65.8-76.8 mm on earlier codes), the mean below does not
         assert o.surface_height == pytest.approx(SETTLED_DEPTH, rel=0.12)
-        # its mean depth over the last 5 s, twice its centroid's height: 75.8 mm, std 1.5 mm, with PSPG's tau free of
-        # the step (75.4 mm with tau's T = max(dt, ...)) and the scene's particle shifting (without 76.4 mm, std 1.0 mm
-        # over those seconds; before the crowding tolerance 77.05; 76.92 with PSPG's viscous part); 76.3 mm with the
-        # hydrostatic pressure's work split off; 76.1 mm, std 1.8 mm, with the last step's pressure by parts and turning
-        # shifts (the scene's since 2026-11-30); 76.5 mm, std 1.9 mm, with the compiled solve of small systems
+        # its mean depth over the last 5 s, twice its centroid's height: measured 76.5 mm, std 1.9 mm (75.4-77.1 mm
+        # on earlier codes; the volume correction's swell, README, Known limits)
         assert 2 * centroid[t >= t[-1] - 5.0, 1].mean() == pytest.approx(0.0763, rel=0.01)
-    else:  # after 5 s the layer still sloshes, and its surface at one instant moves with round-off (75.1 and 67.4 mm
-        # for two codes that differ in the shifting's last bits): its mean depth over the last second, twice its
-        # centroid's height, measured 78.1 mm with the last step's pressure by parts and turning shifts (the scene's
-        # since 2026-11-30: less damped at this step, the layer sloshes higher; 76.1 mm with the compiled solve of small
-        # systems, whose last bits differ), 76.5 mm with the hydrostatic
-        # pressure's work split off (the divergence form 75.3 and 74.6 mm, std 1.5 mm), within 8 % of SETTLED_DEPTH = 73 mm
+    else:  # after 5 s the layer still sloshes and its surface at one instant moves with round-off: its mean depth
+        # over the last second, twice its centroid's height, measured 76.3 mm, within 8 % of SETTLED_DEPTH = 73 mm
         assert 2 * centroid[t >= t[-1] - 1.0, 1].mean() == pytest.approx(SETTLED_DEPTH, rel=0.08)
-    # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.292 at 5 s with the
-    # last step's pressure by parts and turning shifts (0.276 with the compiled solve of small systems; 0.283 with the
-    # split); 0.264 at 5 s
-    # (from a_0 = 0 0.277; start-configuration divergence 0.280)
+    # the energy left: a still layer keeps SETTLED_DEPTH / H = 1/4 of the column's; measured 0.275 at 5 s
     assert o.history["energy"][-1] / o.history["energy"][0] <= bound(full, 0.30, 1.4 * SETTLED_DEPTH / hc.H)
