@@ -4,7 +4,9 @@ Runs the seed's dam break (``--cells N``: N x N cells, 2 x 2 particles per cell 
 N^2 / 2 particles, or n x n) for ``--warm`` steps, then times ``--steps`` steps, phase by phase
 (``project`` = P2G, ``assemble``, ``solve``, ``update`` = G2P, ``relocate``, and the step's
 rest, Python between the phases), and splits the solve by PETSc's event log (free-dof and
-field-split extraction, symbolic and numeric LU, the Krylov iteration). Each version runs in its
+field-split extraction, symbolic and numeric LU, the Krylov iteration). The same number of steps
+again, with each compiled (numba) function of fempm's modules timed per call, splits the step into
+the time inside compiled kernels and the time outside them (Python, numpy, PETSc, MPI). Each version runs in its
 own process, the two alternating ``--rounds`` times, so that both see the same load; the table
 gives the median over the rounds of the CPU time per step (less sensitive to the shared
 machine's load than the wall time, which is given too) and the ratio this / other.
@@ -83,9 +85,45 @@ def worker(cells: int, warm: int, steps: int, petsc: dict, per_cell: int = 2) ->
            **phases, "rest": cpu * per - sum(phases.values())}
     for name, evs in events.items():
         out[name] = (sum(e.getPerfInfo()["time"] for e in evs) - before[name]) * per
+    out["kernels"], out["outside"] = _kernel_share(solver, steps)
     out["free dofs"] = int(solver.grid.comm.allreduce(solver.system.free.mask.sum()))
     out["pattern kept"] = getattr(solver.system.linear_solver, "reuses", 0)
     return out
+
+
+def _kernel_share(solver, steps: int) -> tuple[float, float]:
+    """Milliseconds a step inside fempm's compiled (numba) functions, and outside them (Python, numpy, PETSc, MPI),
+    over ``steps`` more steps (wall time): every compiled function a module of fempm holds is wrapped by a timer.
+    Calls from one compiled function to another are inside; a compiled function imported by name into another
+    module is not wrapped, so its time counts as outside."""
+    import importlib
+    import pkgutil
+
+    import numba
+
+    import fempm
+
+    inside = [0.0]
+
+    def timed(function):
+        def call(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                inside[0] += time.perf_counter() - start
+        return call
+
+    for info in pkgutil.iter_modules(fempm.__path__):
+        module = importlib.import_module(f"fempm.{info.name}")
+        for name, value in list(vars(module).items()):
+            if isinstance(value, numba.core.registry.CPUDispatcher):
+                setattr(module, name, timed(value))
+    start = time.perf_counter()
+    for _ in range(steps):
+        solver.step()
+    total = time.perf_counter() - start
+    return inside[0] / steps * 1e3, (total - inside[0]) / steps * 1e3
 
 
 def run(python: str, root: Path, case: tuple[int, ...], petsc: dict) -> dict:
@@ -126,7 +164,7 @@ def compare(case: tuple[int, ...], versions: dict, rounds: int, with_interfoam: 
         if with_interfoam:
             foam.append(interfoam_step())
     load_end = os.getloadavg()
-    keys = ["step cpu", "step wall", *PHASES, "rest", *EVENTS]
+    keys = ["step cpu", "step wall", *PHASES, "rest", "kernels", "outside", *EVENTS]
     table = {name: {k: median([r[k] for r in rs]) for k in keys} for name, rs in results.items()}
     first = results["this"][0]
     heading = (f"{cells}² cells, {per_cell} × {per_cell} per cell: {first['particles']} particles "
@@ -145,6 +183,8 @@ def compare(case: tuple[int, ...], versions: dict, rounds: int, with_interfoam: 
             table[name]["interfoam paired"] = median([r["step cpu"] / f[1] for r, f in zip(results[name], foam)])
         keys += ["interfoam", "interfoam paired"]
     label = {"step cpu": "step, CPU", "step wall": "step, wall", "rest": "rest (Python between phases)",
+             "kernels": "in compiled kernels (wall, the same steps again, timed per call)",
+             "outside": "outside them: Python, numpy, PETSc, MPI (the same)",
              "interfoam": "step, CPU, over interFoam 40²'s (issue 12: 2.5 / 3.85 = 0.65)",
              "interfoam paired": "the same, each round's over its interFoam's, the median",
              **{k: f"solve: {k} (wall)" for k in EVENTS}}
