@@ -202,6 +202,11 @@ def plot(path: Path, runs: list[tuple[str, dict]], names=None):
     output.save_figure(fig, path)
 
 
+def _mean_and_noise(measures: dict) -> str:
+    """``mean vs interFoam / noise`` of a probe's measures."""
+    return f"{_fmt(measures.get('mean_vs_interfoam'), '+.1%')} / {_fmt(measures.get('noise'), '.1%')}"
+
+
 def _fmt(value, spec: str) -> str:
     return "–" if value is None else format(value, spec)
 
@@ -234,15 +239,14 @@ def page(end_time: float, study=STUDY):
         results[key], tables[key] = run(changes, end_time)
         if MPI.COMM_WORLD.rank == 0:
             print(f"{label}: {results[key]['status']} {results[key]['cause']}, {results[key]['wall_s']:.0f} s", flush=True)
+    spread = nearby()  # collective, as the runs above
     if MPI.COMM_WORLD.rank != 0:
         return
     folder = pages.ROOT / "docs" / "wall-pressure"
     folder.mkdir(parents=True, exist_ok=True)
     labels = {key: label for key, label, _ in study}
     plot(folder / "gauges.png", [(labels[k], tables[k]) for k in ("default", "unshifted") if k in tables])
-    spread = nearby()
-    nearby_rows = [[f"`{name}`", *(_fmt(m["mean_vs_interfoam"], "+.1%") + " / " + _fmt(m["noise"], ".1%") for m in g["runs"]),
-                    _fmt(g["mean_vs_interfoam"], "+.1%") + " / " + _fmt(g["noise"], ".1%"), _fmt(g["lowest_over_rhogL"], ".3f")]
+    nearby_rows = [[f"`{name}`", *map(_mean_and_noise, g["runs"]), _mean_and_noise(g), _fmt(g["lowest_over_rhogL"], ".3f")]
                    for name, g in spread.items()]
     nearby_table = pages.table(["probe", *(f"Courant {c:g}" for c in NEARBY_COURANT), "average", "lowest min/ρgL"],
                                nearby_rows)
