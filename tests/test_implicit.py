@@ -78,11 +78,9 @@ def test_dambreak_front_is_converged_against_a_finer_run(dambreak_fronts):
     fine_measures = dambreak.front_measures(fine)
     print(f"front RMS difference, seed resolution vs 2x finer: {100 * numerical:.2f} %; finer run vs interFoam "
           f"160: {100 * fine_measures['front_difference_vs_interfoam_160']:.2f} %")
-    # measured 0.0121 with the last step's pressure by parts and turning shifts (the scene's since 2026-11-30), 0.0125
-    # before (4 x 4 per cell unshifted: 0.0110; 2 x 2 unshifted: 0.0379)
+    # measured 1.21 %
     assert numerical <= 0.013
-    # measured 0.0053 with the last step's pressure by parts and turning shifts, 0.0056 before (4 x 4 per cell unshifted
-    # 0.0043; 2 x 2 unshifted: 0.0180): closer; issue 11 asks 1.2 % of 80² cells
+    # measured 0.53 %: closer; issue 11 asks 1.2 % of 80² cells
     assert fine_measures["front_difference_vs_interfoam_160"] <= 0.006
 
 
@@ -106,11 +104,10 @@ def test_a_solved_initial_acceleration_takes_the_step_out_of_the_front():
     the step. With ``a_0`` solved (the default) it hardly moves from 1 to 4 ms."""
     solved = [front_error(dt, "solved") for dt in (1e-3, 4e-3)]
     zero = [front_error(dt, "given") for dt in (1e-3, 4e-3)]
-    # measured 1.99, 1.93 % with the default PIC shares (whole 30/s, then the noise's 300/s; the whole share alone
-    # at 100/s: 1.93, 1.99 %; unshifted 1.88, 1.92 %; crowding only 1.84, 1.88 %)
+    # measured 1.99, 1.94 %
     assert max(solved) < 0.0205
-    assert solved[1] - solved[0] < 0.0008  # measured -0.06 points (whole share alone: 0.05)
-    # measured 2.19, 2.90 %: 0.71 points (whole share alone: 2.14, 2.99 %, 0.85 points; unshifted 2.01, 2.83 %)
+    assert solved[1] - solved[0] < 0.0008  # measured -0.05 points
+    # measured 2.22, 2.90 %: 0.68 points
     assert zero[1] - zero[0] > 0.0065
 
 
@@ -123,14 +120,9 @@ def test_the_shipped_scenes_front_is_no_worse_at_half_and_a_quarter_of_its_step(
         summary, front = run_dambreak(tmp_path / f"c{courant}", {"time.end": 0.28, "time.courant": courant})
         errors.append(dambreak.front_measures(front)["front_difference_vs_interfoam_160"])
     print(errors)
-    # measured 1.874, 1.840, 1.837 % with the last step's pressure by parts and turning shifts (the scene's since
-    # 2026-11-30); 1.783, 1.742, 1.754 % with the hydrostatic pressure's work split off; in divergence form
-    # 1.800, 1.766, 1.799 % with the default PIC shares (whole 30/s, then the noise's 300/s); with the whole
-    # share alone at 100/s:
-    assert errors[0] <= 0.0190  # measured 1.797 % (1.814 % before PSPG's displacement in a step was bounded; with PSPG's
-    # tau following the step above 0.96 ms: 1.974 %; 4 x 4 per cell at Courant 0.6, unshifted: 1.323 %)
-    # measured 1.802 % and 1.820 % (before the bound 1.816 % and 1.828 %; tau following the step: 1.933 % and 1.895 %; 4 x 4 per cell at Courant 0.6 / 0.3 / 0.15, unshifted: 1.323, 1.269 and 1.320 %;
-    # fixed steps of 1, 0.5 and 0.25 ms: 1.464, 1.535 and 1.584 %; 2 x 2 unshifted 1.86, 1.88, 1.91 %)
+    # measured 1.874, 1.840, 1.837 % (on 2026-11-30 01:00 the split 1.783, 1.742, 1.754 %; the divergence form 1.800,
+    # 1.766, 1.799 %)
+    assert errors[0] <= 0.0190
     assert max(errors[1:]) <= errors[0] + 0.0005
 
 
@@ -146,10 +138,7 @@ def test_without_pspg_the_run_stops_with_a_diagnosis(tmp_path):
                                              "output.grid_interval": 0.05}, files=True)
     assert summary["status"] == "stopped"
     assert "pressure" in summary["cause"] and f"t = {summary['time'] + 0.001:.3f} s" in summary["cause"]
-    assert summary["time"] == pytest.approx(0.255, abs=0.0015)  # measured 0.255 s (shifted; unshifted 0.257 s; crowding only 0.200,
-    # before the crowding tolerance
-    # 0.231; from a_0 = 0: 0.227;
-    # start-configuration divergence 0.248; FLIP/PIC, two-sided walls: 0.171 s; affine-FLIP two-sided 0.254; the seed: 0.175)
+    assert summary["time"] == pytest.approx(0.255, abs=0.0015)  # measured 0.255 s (the seed: 0.175 s)
     # everything written until then is whole
     written = json.loads((tmp_path / "summary.json").read_text())
     assert written["status"] == "stopped"
