@@ -64,12 +64,11 @@ def test_gresho_vortex_short():
     old = vortices.gresho("FLIP/PIC", 32, 0.0125, 0.25)
     print(new, old)
     assert new["status"] == old["status"] == "completed"
-    # measured -1.23 % with the default shares (whole 30/s, then the noise's 300/s; the whole share alone at 100/s
-    # -1.91 %; start-configuration divergence, alpha 0: -2.38 %)
+    # measured -1.18 % (the whole PIC share alone at 100/s -1.91 %; start-configuration divergence, alpha 0: -2.38 %)
     assert -0.020 < new["ke"] < 0
     assert old["ke"] < -0.085  # measured -8.86 % (before the crowding tolerance -8.81 %)
-    # measured -0.128 %, 4.19 % with the default shares (the whole share alone at 100/s -0.092 %, 4.91 %; before the
-    # crowding tolerance -0.072 %, 4.89 %; FLIP/PIC 6.56 %; with the start configuration's divergence +2.87 %, 6.29 %)
+    # measured -0.126 %, profile 3.77 % (FLIP/PIC's profile 6.56 %; with the start configuration's divergence +2.87 %,
+    # 6.29 %)
     assert -0.0014 < new["L"] < 0
     assert new["profile"] < 0.052
 
