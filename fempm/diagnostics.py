@@ -31,10 +31,23 @@ def fastest(particles) -> float:
     return collective.largest(particles.grid.comm, local)
 
 
+@numba.njit(cache=True)
+def _largest_ratio(a, b):
+    """``max_p a_p / b_p``, at least 0 (NaN if a ratio is NaN)."""
+    largest = 0.0
+    for p in range(a.shape[0]):
+        ratio = a[p] / b[p]
+        if ratio > largest:
+            largest = ratio
+        elif ratio != ratio:
+            return ratio
+    return largest
+
+
 def pressure_speed(particles) -> float:
     """``max sqrt(p / rho)`` over the particles of all ranks (0 where no pressure is positive): the speed at
     which the pressure's work at the particles changes as they move (see :class:`fempm.stepper.StepControl`)."""
-    head = float((particles["pressure"] / particles["density"]).max(initial=0.0))
+    head = float(_largest_ratio(particles["pressure"], particles["density"]))
     return float(np.sqrt(collective.largest(particles.grid.comm, head)))
 
 

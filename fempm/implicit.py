@@ -89,6 +89,18 @@ def _move(values, du, p, x, pressure):
         pressure[q] = values[q, p]
 
 
+@numba.njit(cache=True)
+def _largest_magnitude(values):
+    """``max |values|``, 0 for none (NaN if one is NaN)."""
+    largest = 0.0
+    for value in values:
+        if abs(value) > largest:
+            largest = abs(value)
+        elif value != value:
+            return value
+    return largest
+
+
 class ImplicitSolver(Stepper):
     """Advances particles of an incompressible viscous fluid by the implicit MPM.
 
@@ -303,7 +315,7 @@ class ImplicitSolver(Stepper):
         if self._shifting:  # the particles spread evenly again (fempm.shifting)
             self._shifting(p, s.dt)
             p.fields["x"] = s.walls.keep_inside(p.x)
-        self.max_divergence = collective.largest(self.grid.comm, np.abs(divergence).max(initial=0.0))
+        self.max_divergence = collective.largest(self.grid.comm, _largest_magnitude(divergence))
         self.check_pressure(p["pressure"], s.dt)
         if self.check_energy:
             self.check_energy(s.dt)

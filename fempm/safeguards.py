@@ -6,6 +6,7 @@ Each raises :class:`~fempm.linear.SolveFailed` with a diagnosis; the stepper tur
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 from mpi4py import MPI
 
@@ -26,6 +27,20 @@ def impact_impulse(density: float, start_speed: float, gravity, extent: float) -
     return density * (start_speed + fall) * extent
 
 
+@numba.njit(cache=True)
+def _extremes(pressure):
+    """``[-min(p, 0), max(p, 0)]`` over the 1-D ``pressure`` (NaN in both if one is NaN)."""
+    low = high = 0.0
+    for p in pressure:
+        if p < low:
+            low = p
+        elif p > high:
+            high = p
+        elif p != p:
+            return np.array([np.nan, np.nan])
+    return np.array([-low, high])
+
+
 class PressureCheck:
     """Stops on a pressure that is not finite, a tension beyond ``tension_limit`` or a compression
     beyond ``compression_limit`` plus an impact's ``impulse / dt`` (Pa); ``label`` names the failure."""
@@ -36,10 +51,11 @@ class PressureCheck:
         self.tension_limit, self.compression_limit = tension_limit, compression_limit
 
     def __call__(self, pressure: np.ndarray, dt: float):
-        extremes = np.array([-pressure.min(initial=0.0), pressure.max(initial=0.0)])  # one reduction for both
+        extremes = _extremes(np.ravel(pressure))  # one reduction for both
         if not np.isfinite(extremes.sum()):
             extremes[:] = np.inf  # NaN on one rank: not finite on all
-        self.comm.Allreduce(MPI.IN_PLACE, extremes, op=MPI.MAX)
+        if self.comm.size > 1:
+            self.comm.Allreduce(MPI.IN_PLACE, extremes, op=MPI.MAX)
         low, high = -float(extremes[0]), float(extremes[1])
         if not np.isfinite(low + high):
             raise SolveFailed("the pressure is not finite")

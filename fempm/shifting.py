@@ -211,6 +211,17 @@ def _shifts(v, grad, movable, dt, rate, stiffness, cap, rest, mass, shifts):
 
 
 @numba.njit(cache=True)
+def _momentum(v, movable, mass):
+    """``sum m v`` over the ``movable`` particles."""
+    total = np.zeros(2)
+    for i in range(v.shape[0]):
+        if movable[i]:
+            total[0] += mass[i] * v[i, 0]
+            total[1] += mass[i] * v[i, 1]
+    return total
+
+
+@numba.njit(cache=True)
 def _turning(v, movable, mass, mean, mean_velocity, shifts):
     """Over the ``movable`` particles: ``sum m (dr - mean) x v``, the angular momentum the shifts less their
     mean would add, and ``sum m |v - mean_velocity|^2``."""
@@ -310,7 +321,7 @@ class ParticleShifting:
             return shifts
         mean, mean_velocity, turn = total[1:] / total[0], np.zeros(2), 0.0
         if self.keep_angular_momentum:
-            mean_velocity = collective.summed(grid.comm, np.einsum("i,ij->j", mass[movable], v[movable])) / total[0]
+            mean_velocity = collective.summed(grid.comm, _momentum(v, movable, mass)) / total[0]
             turning, spread = collective.summed(grid.comm, _turning(v, movable, mass, mean, mean_velocity, shifts))
             turn = turning / spread if spread > 0 else 0.0
         _move(x, v, movable, mean, mean_velocity, turn, shifts)

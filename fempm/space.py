@@ -95,6 +95,7 @@ class Space:
         starts = np.cumsum([0, *self.fields.values()])
         self._slices = {name: slice(int(a), int(b)) for name, a, b in zip(self.fields, starts[:-1], starts[1:])}
         self._components = {}  # by tuple of names (components)
+        self._offsets = {}  # by tuple of names (offsets)
 
     def __repr__(self) -> str:
         return f"Space({self.basis.name}, {self.fields})"
@@ -109,6 +110,16 @@ class Space:
             return self._slices[name]
         except KeyError:
             raise InputError(f"space has no field {name!r}; its fields are {list(self.fields)}") from None
+
+    def offsets(self, *names: str) -> np.ndarray:
+        """The first component of each named field within a block of ``bs`` dofs (read-only, made once per
+        tuple of names)."""
+        index = self._offsets.get(names)
+        if index is None:
+            index = np.array([self.field_offset(name) for name in names], dtype=np.int64)
+            index.setflags(write=False)
+            self._offsets[names] = index
+        return index
 
     def components(self, *names: str) -> np.ndarray:
         """The components of the named fields within a block of ``bs`` dofs, field after field

@@ -33,6 +33,15 @@ _acceleration, _end_velocity = (numba.njit(cache=True)(f) for f in (newmark.acce
 
 
 @numba.njit(cache=True)
+def _all_finite(values) -> bool:
+    """Whether every entry of the 1-D ``values`` is finite."""
+    for i in range(values.shape[0]):
+        if not np.isfinite(values[i]):
+            return False
+    return True
+
+
+@numba.njit(cache=True)
 def _end_state(du, v, a, dt, beta, gamma, v_new, a_new):
     """:mod:`fempm.newmark`'s ``a_{n+1}`` and ``v_{n+1}`` entry by entry (its own functions, compiled)."""
     for f in range(du.shape[0]):
@@ -207,7 +216,7 @@ class GridSystem:
                 u[: self.space.num_owned_dofs] += delta.getArray(readonly=True)
                 U.scatter_forward()
             self.newton_iterations += 1
-            if not np.all(np.isfinite(u)):
+            if not _all_finite(u):
                 raise SolveFailed("the solution is not finite")
             if forms.linear:
                 break

@@ -24,6 +24,8 @@ Sums over particles on several ranks meet at the owners of the functions.
 
 from __future__ import annotations
 
+import weakref
+
 import numba
 import numpy as np
 from llvmlite import ir
@@ -524,7 +526,7 @@ def update_state(g2p: GridFunction, particles, kind: str, share: float, values: 
     else:
         rule, affine = _G2P_RULES.index(affine_rule(kind)), (particles[name] for name in AFFINE_FIELDS)
     _g2p_state(phi, lfun, function_nodes(space), np.ascontiguousarray(particles.x), g2p.values,
-               np.array([space.field_offset(name) for name in ("dv", "da", "v", "a")]), *_held_fields(space),
+               space.offsets("dv", "da", "v", "a"), *_held_fields(space),
                float(share),
                float(rest[0]), float(rest[1]), rule,
                space.grid.h, _moment_floor(space.grid.h), particles["velocity"], particles["acceleration"], *affine,
@@ -685,11 +687,24 @@ def _particle_derivative(phi_p, lfun_p, grid_values, d, c):
 def _held_fields(space: Space) -> tuple[int, np.ndarray]:
     """The offset of the two-component field ``held`` in ``space`` (-1 without it) and the components
     :func:`_restore_held` takes over the moved functions, rows ``(component, d)``: those of the other
-    two-component fields, each with its direction ``d`` (the component of ``held`` it goes by)."""
+    two-component fields, each with its direction ``d`` (the component of ``held`` it goes by; made once per
+    space)."""
+    known = _HELD_FIELDS.get(space)
+    if known is not None:
+        return known
     if "held" not in space.fields:
-        return -1, np.empty((0, 2), dtype=np.int64)
-    return space.field_offset("held"), np.array([(space.field_offset(name) + d, d) for name, size in space.fields.items()
-                                                 if name != "held" and size == 2 for d in range(2)], dtype=np.int64)
+        known = -1, np.empty((0, 2), dtype=np.int64)
+    else:
+        known = space.field_offset("held"), np.array([(space.field_offset(name) + d, d) for name, size in
+                                                      space.fields.items() if name != "held" and size == 2
+                                                      for d in range(2)], dtype=np.int64)
+    known[1].setflags(write=False)
+    _HELD_FIELDS[space] = known
+    return known
+
+
+#: :func:`_held_fields` of the spaces it was asked for, while they live
+_HELD_FIELDS = weakref.WeakKeyDictionary()
 
 
 #: :func:`_restore_held` takes the held functions at a particle's value up to this weight of them, then less,
