@@ -137,16 +137,11 @@ class Walls:
         if self._held_for is not None and np.array_equal(self._held_for, self.active):
             return
         self._held_for = self.active.copy()
-        partners = self.partner[self.active]
-        held = np.zeros(len(self._owned), dtype=bool)  # by position among the owned dofs (increasing)
-        held[self._fixed_positions] = True
-        held[self.normal[self.active]] = True
-        held[partners[partners >= 0]] = True
-        self.positions = np.flatnonzero(held)
-        self.dofs, self.values = self._owned[self.positions], self._value_at[self.positions]
         bs, first = self.space.bs, self.space.field_offset(self.field)
-        # the same dofs in a two-component grid function (a velocity or an acceleration)
-        self._vector_index = self.positions // bs * 2 + self.positions % bs - first
+        # the positions, and the same dofs in a two-component grid function (a velocity or an acceleration)
+        self.positions, self._vector_index = _held_positions(len(self._owned), self._fixed_positions, self.normal,
+                                                             self.partner, self.active, bs, first)
+        self.dofs, self.values = self._owned[self.positions], self._value_at[self.positions]
 
     def tolerances(self, density: float, dt: float) -> tuple[float, float]:
         """The pull (per unit thickness) below which a held dof stays held,
@@ -318,6 +313,23 @@ class Walls:
             self.stops += _stop_at_obstacle_faces(x, grid.lower, grid.h, grid.nx, grid.ny, grid.blocked,
                                                   1e-9 * grid.h)
         return x
+
+
+@numba.njit(cache=True)
+def _held_positions(owned, fixed, normal, partner, active, bs, first):
+    """The held dofs by position among the ``owned`` ones (increasing): the ``fixed`` ones, the ``active``
+    contact dofs (``normal``) and their tangential ``partner`` (-1: none); and the same dofs in a two-component
+    grid function, given the space's block size ``bs`` and the velocity's first component ``first``."""
+    held = np.zeros(owned, dtype=np.bool_)
+    for position in fixed:
+        held[position] = True
+    for i in range(normal.shape[0]):
+        if active[i]:
+            held[normal[i]] = True
+            if partner[i] >= 0:
+                held[partner[i]] = True
+    positions = np.flatnonzero(held)
+    return positions, positions // bs * 2 + positions % bs - first
 
 
 @numba.njit(cache=True)
