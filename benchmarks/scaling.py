@@ -107,8 +107,8 @@ def main(argv=None):
             results = {r: {"error": "skipped (memory)"} if skip and r > 1 else run_case(size, linear, r, args.steps)
                        for r in args.ranks}
             first = next((v for v in results.values() if "error" not in v), None)
-            cells = f"{first['cells']}^2" if first else "?"
-            count = first["particles"] if first else 0
+            cells = f"{cells_for(size)}^2"
+            count = first["particles"] if first else "-"  # counted by a run only
             columns = " ".join(f"{v['error']:>18}" if "error" in v else
                                f"{v['step_s']:8.3f} s {v['peak_GB']:5.2f} GB" for v in results.values())
             ok = [v for v in results.values() if "error" not in v]
