@@ -7,9 +7,9 @@ rest, Python between the phases), and splits the solve by PETSc's event log (fre
 field-split extraction, symbolic and numeric LU, the Krylov iteration). The same number of steps
 again, with each compiled (numba) function of fempm's modules timed per call, splits the step into
 the time inside compiled kernels and the time outside them (Python, numpy, PETSc, MPI). Each version runs in its
-own process, the two alternating ``--rounds`` times, so that both see the same load; the table
-gives the median over the rounds of the CPU time per step (less sensitive to the shared
-machine's load than the wall time, which is given too) and the ratio this / other.
+own process, the two alternating ``--rounds`` times (first one, then the other first), so that both see the same
+load; the table gives the median over the rounds of the CPU time per step (less sensitive to the shared machine's
+load than the wall time, which is given too) and the ratio this / other.
 
     python benchmarks/step_cost.py --case 40:100:300 --case 236:60:10 --against ../main --page docs/speed-step.md
 
@@ -159,8 +159,9 @@ def compare(case: tuple[int, ...], versions: dict, rounds: int, with_interfoam: 
     load_start = os.getloadavg()
     results = {name: [] for name in versions}
     foam = []
-    for _ in range(rounds):
-        for name, (python, root, petsc) in versions.items():
+    for round_ in range(rounds):
+        # the order turns each round, so that no version always runs first after interFoam or the other
+        for name, (python, root, petsc) in (list if round_ % 2 == 0 else reversed)(list(versions.items())):
             results[name].append(run(python, root, case, petsc))
         if with_interfoam:
             foam.append(interfoam_step())
