@@ -160,8 +160,10 @@ def compare(case: tuple[int, ...], versions: dict, rounds: int, with_interfoam: 
     results = {name: [] for name in versions}
     foam = []
     for round_ in range(rounds):
-        # the order turns each round, so that no version always runs first after interFoam or the other
-        for name, (python, root, petsc) in (list if round_ % 2 == 0 else reversed)(list(versions.items())):
+        order = list(versions.items())
+        if round_ % 2:  # the order turns each round: no version always runs first after interFoam or the other
+            order.reverse()
+        for name, (python, root, petsc) in order:
             results[name].append(run(python, root, case, petsc))
         if with_interfoam:
             foam.append(interfoam_step())
