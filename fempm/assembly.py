@@ -27,6 +27,9 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic
 
 __all__ = [
     "assemble_matrix",
@@ -40,6 +43,26 @@ __all__ = [
     "side_by_side",
 ]
 
+
+
+@intrinsic
+def _tabulate(typingctx, kernel, A, w, c, coords):
+    """FFCx's ``tabulate_tensor(A, w, c, coords, NULL, NULL, NULL)``, the kernel given by its address (an
+    integer, :attr:`fempm.quadrature.ParticleForm` keeps them): a ctypes function as an argument would be
+    converted at every call of a loop, a microsecond or two each."""
+    if not (isinstance(kernel, types.Integer) and all(isinstance(a, types.Array) for a in (A, w, c, coords))):
+        return None
+
+    def codegen(context, builder, signature, args):
+        pointer = ir.IntType(8).as_pointer()
+        function = ir.FunctionType(ir.VoidType(), [pointer] * 7).as_pointer()
+        data = [builder.bitcast(context.make_array(ty)(context, builder, value).data, pointer)
+                for ty, value in zip(signature.args[1:], args[1:])]
+        null = ir.Constant(pointer, None)
+        builder.call(builder.inttoptr(args[0], function), [*data, null, null, null])
+        return context.get_dummy_value()
+
+    return types.void(kernel, A, w, c, coords), codegen
 
 
 @numba.njit(cache=True)
@@ -267,18 +290,18 @@ def assemble_matrix(kernel, values, indptr, stencil, x, cell, weight, phi, lfun,
         _jet_cell(x[p], h, coords)
         if vector is not None:
             Kv[:] = 0.0
-            vector[0](Kv.ctypes.data, coeffs[p].ctypes.data, vector[2].ctypes.data, coords.ctypes.data, 0, 0, 0)
+            _tabulate(vector[0], Kv, coeffs[p], vector[2], coords)
             _add_vector_particle(Kv, weight[p], phi[p], lfun[p], vector[3], vector[1])
         if alongside is not None and alongside[5][p]:
             for i in range(alongside[4].shape[0]):
                 wa[i] = coeffs[p, alongside[4][i]]
             Ka[:] = 0.0
-            alongside[0](Ka.ctypes.data, wa.ctypes.data, alongside[2].ctypes.data, coords.ctypes.data, 0, 0, 0)
+            _tabulate(alongside[0], Ka, wa, alongside[2], coords)
             _add_vector_particle(Ka, weight[p], phi[p], lfun[p], alongside[3], alongside[1])
         for i in range(columns.shape[0]):
             w[i] = coeffs[p, columns[i]]
         K[:] = 0.0
-        kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+        _tabulate(kernel, K, w, consts, coords)
         if nq == 3:
             _add_particle_first_order(K, perm, weight[p], phi[p], T, Ae)
             continue
@@ -309,7 +332,7 @@ def assemble_vector(kernel, out, x, cell, weight, phi, lfun, coeffs, consts, per
     for p in range(cell.shape[0]):
         K[:] = 0.0
         _jet_cell(x[p], h, coords)
-        kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+        _tabulate(kernel, K, coeffs[p], consts, coords)
         _add_vector_particle(K, weight[p], phi[p], lfun[p], perm, out)
     return 0
 
@@ -324,7 +347,7 @@ def _nodal_kernel(kernel, K, w, f, nodal, consts, coords):
     for s in range(zero_pos.shape[0]):
         w[zero_pos[s]] = 0.0
     K[:] = 0.0
-    kernel(K.ctypes.data, w.ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+    _tabulate(kernel, K, w, consts, coords)
 
 
 @numba.njit(cache=True)
@@ -454,7 +477,7 @@ def assemble_scalar(kernel, x, weight, coeffs, consts, h):
     for p in range(x.shape[0]):
         K[0] = 0.0
         _jet_cell(x[p], h, coords)
-        kernel(K.ctypes.data, coeffs[p].ctypes.data, consts.ctypes.data, coords.ctypes.data, 0, 0, 0)
+        _tabulate(kernel, K, coeffs[p], consts, coords)
         total += weight[p] * K[0]
     return total
 

@@ -31,7 +31,6 @@ velocity is the previous step's grid velocity).
 
 from __future__ import annotations
 
-import ctypes
 import functools
 import hashlib
 import platform
@@ -81,7 +80,6 @@ def _cpu_tag() -> str:
 # that shares the cache (an HPC home folder)
 _JIT_OPTIONS = {"cffi_extra_compile_args": ["-O3", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
 _REGULAR, _LUMPED, _FIXED = 0, 1, 2  # subdomain ids of s.dx, s.dx_lumped and s.dx_fixed on the jet cell
-_KERNEL_TYPE = ctypes.CFUNCTYPE(None, *[ctypes.c_void_p] * 7)
 _ffi = FFI()
 
 
@@ -493,10 +491,10 @@ class ParticleForm:
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
-        self._kernels = {}  # subdomain id -> kernel of the regular, the lumped and the fixed points' integral
+        self._kernels = {}  # subdomain id -> address of the kernel of the regular, the lumped and the fixed points' integral
         for i in range(ufcx.form_integral_offsets[0], ufcx.form_integral_offsets[1]):
             address = int(_ffi.cast("intptr_t", ufcx.form_integrals[i].tabulate_tensor_float64))
-            self._kernels[ufcx.form_integral_ids[i]] = _KERNEL_TYPE(address)
+            self._kernels[ufcx.form_integral_ids[i]] = address
         self.fixed = _FIXED in self._kernels  # whether it integrates over s.dx_fixed
         original = form.coefficients()
         coefficients = [original[ufcx.original_coefficient_positions[i]] for i in range(ufcx.num_coefficients)]
