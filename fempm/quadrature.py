@@ -511,11 +511,11 @@ class ParticleForm:
     def _function_sums(self, phi0, lfun, weight, coeffs, slots) -> np.ndarray:
         """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks; ``c_p`` the
         particle fields, columns ``slots`` of ``coeffs``."""
-        if self._nodal_sums is None:
-            self._nodal_sums = dolfinx.la.vector(self.space.numbering.index_map, 1 + len(slots))
-        sums = self._nodal_sums
-        sums.array[:] = 0.0
-        table = sums.array.reshape(-1, 1 + len(slots))
+        if self._nodal_sums is None:  # the vector and its table, made once (DOLFINx makes a new view at each .array)
+            sums = dolfinx.la.vector(self.space.numbering.index_map, 1 + len(slots))
+            self._nodal_sums = sums, sums.array.reshape(-1, 1 + len(slots))
+        sums, table = self._nodal_sums
+        table[:] = 0.0
         assembly.nodal_sums(phi0, lfun, weight, coeffs, slots, table)
         sums.scatter_reverse(dolfinx.la.InsertMode.add)
         return table
@@ -555,20 +555,21 @@ class ParticleForm:
     def assemble_vector(self, particles, b: dolfinx.la.Vector | None = None) -> dolfinx.la.Vector:
         """The vector ``b_i = sum_p V_p L(phi_i)(x_p)``; owned entries complete, ghosts zero."""
         self._require_rank(1)
-        b = self._zeroed_vector(b)
+        b, values = self._zeroed_vector(b)
         particles, fixed = _point_sets(particles, self)
         phi, lfun, weight, coeffs, consts = self._particle_data(particles)
         if _REGULAR in self._kernels:
-            self._regular_vector(b, particles, phi, lfun, weight, coeffs, consts)
-        self._lumped_vector(b, particles, lfun, weight, coeffs, consts)
+            self._regular_vector(values, particles, phi, lfun, weight, coeffs, consts)
+        self._lumped_vector(values, particles, lfun, weight, coeffs, consts)
         if _FIXED in self._kernels:
-            self._regular_vector(b, fixed, *self._particle_data(fixed), kind=_FIXED)
+            self._regular_vector(values, fixed, *self._particle_data(fixed), kind=_FIXED)
         b.scatter_reverse(dolfinx.la.InsertMode.add)
         return b
 
-    def _regular_vector(self, b, points, phi, lfun, weight, coeffs, consts, kind=_REGULAR):
-        """The ``dx`` part of the vector (``kind`` = ``_FIXED``: the ``dx_fixed`` part, at the fixed points)."""
-        assembly.assemble_vector(self._kernels[kind], b.array, points.x, points.cell, weight, phi, lfun, coeffs,
+    def _regular_vector(self, values, points, phi, lfun, weight, coeffs, consts, kind=_REGULAR):
+        """The ``dx`` part of the vector into its ``values`` (``kind`` = ``_FIXED``: the ``dx_fixed`` part, at the
+        fixed points)."""
+        assembly.assemble_vector(self._kernels[kind], values, points.x, points.cell, weight, phi, lfun, coeffs,
                                  consts, self._perm, self.space.grid.h)
 
     def assemble_with(self, residual: ParticleForm, particles, A: PETSc.Mat | None = None,
@@ -591,26 +592,27 @@ class ParticleForm:
         if columns is None:
             b = residual.assemble_vector(particles, b)
             return self.assemble_matrix(particles, A), b
-        target, b = self._zeroed_target(A), residual._zeroed_vector(b)
+        target, (b, values) = self._zeroed_target(A), residual._zeroed_vector(b)
         particles, fixed = _point_sets(particles, self)
         if _FIXED in self._kernels:  # the fixed points' integrals, in one pass too
             phi, lfun, weight, coeffs, consts_r = residual._particle_data(fixed)
-            vector = (residual._kernels[_FIXED], b.array, consts_r, residual._perm)
+            vector = (residual._kernels[_FIXED], values, consts_r, residual._perm)
             self._regular_matrix(target, fixed, phi, lfun, weight, coeffs, columns, self._constants_now(), vector,
                                  kind=_FIXED)
         phi, lfun, weight, coeffs, consts_r = residual._particle_data(particles)
         consts = self._constants_now()
-        vector = (residual._kernels[_REGULAR], b.array, consts_r, residual._perm)
+        vector = (residual._kernels[_REGULAR], values, consts_r, residual._perm)
         extra = None
         if alongside is not None:
             form, out, where = alongside
-            out.array[:] = 0.0
-            extra = (form._kernels[_REGULAR], out.array, form._constants_now(), form._perm, form._columns_in(residual),
+            out_values = out.array
+            out_values[:] = 0.0
+            extra = (form._kernels[_REGULAR], out_values, form._constants_now(), form._perm, form._columns_in(residual),
                      where)
         self._regular_matrix(target, particles, phi, lfun, weight, coeffs, columns, consts, vector, alongside=extra)
         if alongside is not None:
             alongside[1].scatter_reverse(dolfinx.la.InsertMode.add)
-        sums = residual._lumped_vector(b, particles, lfun, weight, coeffs, consts_r)
+        sums = residual._lumped_vector(values, particles, lfun, weight, coeffs, consts_r)
         slots, same_slots = self._slots_in(residual)
         self._lumped_matrix(target, particles, lfun, weight, coeffs, slots, consts, sums if same_slots else None)
         b.scatter_reverse(dolfinx.la.InsertMode.add)
@@ -681,12 +683,14 @@ class ParticleForm:
         target.zero()
         return target
 
-    def _zeroed_vector(self, b: dolfinx.la.Vector | None) -> dolfinx.la.Vector:
-        """``b`` (a new vector of the space if None), zeroed."""
+    def _zeroed_vector(self, b: dolfinx.la.Vector | None) -> tuple[dolfinx.la.Vector, np.ndarray]:
+        """``b`` (a new vector of the space if None), zeroed, and its values (one view: DOLFINx makes a new one
+        at each ``.array``)."""
         if b is None:
             b = self.space.create_vector()
-        b.array[:] = 0.0
-        return b
+        values = b.array
+        values[:] = 0.0
+        return b, values
 
     def _regular_matrix(self, target, particles, phi, lfun, weight, coeffs, columns, consts, vector=None,
                         kind=_REGULAR, alongside=None):
@@ -722,20 +726,20 @@ class ParticleForm:
                 self._lumped_per_function,
             )
 
-    def _lumped_vector(self, b, particles, lfun, weight, coeffs, consts) -> np.ndarray | None:
-        """The ``dx_lumped`` part of the vector; the nodal sums it made (None: none)."""
+    def _lumped_vector(self, values, particles, lfun, weight, coeffs, consts) -> np.ndarray | None:
+        """The ``dx_lumped`` part of the vector, into its ``values``; the nodal sums it made (None: none)."""
         if _LUMPED not in self._kernels:
             return None
         h, slots = self.space.grid.h, self._packing.particle_slots()
         if not self._lumped_affine:
             assembly.assemble_vector_lumped(
-                self._kernels[_LUMPED], b.array, particles.x, weight, self._basis_values(particles),
+                self._kernels[_LUMPED], values, particles.x, weight, self._basis_values(particles),
                 lfun, coeffs, consts, self._perm, h, self._packing.nodal_slots(), self._lumped_per_function,
             )
             return None
         sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs, slots)
         assembly.assemble_vector_nodal_affine(
-            self._kernels[_LUMPED], b.array, sums, self.space.numbering.num_owned, slots, self._packing.width,
+            self._kernels[_LUMPED], values, sums, self.space.numbering.num_owned, slots, self._packing.width,
             consts, self._perm, h, self._packing.nodal_slots(),
         )
         return sums

@@ -256,8 +256,8 @@ class GridSystem:
                 and forms.excess_in_pass):
             return None
         if self._excess is None:
-            self._excess = self.space.create_vector()
-        return self._excess, self._touching_rows(self.walls.normal, particles)
+            self._excess = GridFunction(self.space, "wall_force_excess")
+        return self._excess.vector, self._touching_rows(self.walls.normal, particles)
 
     def _touching_rows(self, rows: np.ndarray, particles) -> np.ndarray:
         """Which particles have a basis function among those of the owned dofs ``rows`` (collective)."""
