@@ -66,7 +66,7 @@ class DeepWater:
             self._unresolved |= edge[side]
         self.centre_values = space.basis.tabulate(self.cells, 0.5 * grid.cell_sizes(self.cells) / grid.h, order=0)[:, 0, :]
         self.cell_functions = space.local_functions_of_cells(self.cells)
-        self._shallow = GridFunction(space, "shallow_cells")
+        self._deep_cells = GridFunction(space, "deep_cells")
         self._ramps = GridFunction(Space(space.basis, {"still": 2, "moving": 2}), "by_parts_ramps")
         # each local function's cells on all ranks: the pass below visits only the cells some water reaches
         # and counts what is not shallow, not zero, so that a dry cell costs no writes
@@ -76,58 +76,54 @@ class DeepWater:
         support.scatter_forward()
         self._support = support.values[:, 0].copy()
 
-    def _summed(self, phi: np.ndarray, by_parts: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-        """Per local function: its support's cells below :data:`DEEP`; with ``by_parts`` also, for each ramp
-        (still, moving), the sum of the logarithms of the cells' ramps above zero and the count of those at
-        zero, blocked (an obstacle's cell, whose face the basis does not resolve) or along an open side
-        (owned and ghost, up to date; collective)."""
-        sums = [self._shallow] + ([self._ramps] if by_parts else [])
-        for f in sums:
-            f.values[:] = 0.0
-        _sum_cells(self.centre_values, self.cell_functions, phi, self._unresolved, _RAMPS, self._shallow.values[:, 0],
+    def _counted(self, phi: np.ndarray, by_parts: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
+        """Per local function, over its support's cells: those at or above :data:`DEEP`; with ``by_parts`` also,
+        for each ramp (still, moving), the sum of the logarithms of the cells' ramps above zero and the count of
+        those (a cell blocked, an obstacle's whose face the basis does not resolve, or along an open side has a
+        ramp of zero; owned and ghost, up to date; collective)."""
+        sums = [self._deep_cells] + ([self._ramps] if by_parts else [])
+        _sum_cells(self.centre_values, self.cell_functions, phi, self._unresolved, _RAMPS, self._deep_cells.values[:, 0],
                    self._ramps.values if by_parts else np.zeros((0, 4)))
         for f in sums:
             f.scatter_reverse_add()
             f.scatter_forward()
-        shallow = self._shallow.values[:, 0]
-        shallow[:] = self._support - shallow  # the pass counted the cells at or above DEEP
-        if by_parts:
-            for k in (1, 3):  # ... and the cells whose ramp is above zero
-                self._ramps.values[:, k] = self._support - self._ramps.values[:, k]
-        return shallow, self._ramps.values if by_parts else None
+        return self._deep_cells.values[:, 0], self._ramps.values if by_parts else None
 
     def interior(self, phi: np.ndarray) -> np.ndarray:
         """Which local functions have only deep cells in their support, given ``phi`` on the local
         functions (owned and ghost, up to date; collective)."""
-        return self._summed(phi)[0] == 0
+        return self._counted(phi)[0] == self._support
 
     def __call__(self, phi: np.ndarray) -> np.ndarray:
         """``deep`` on the local functions: 1.0 on the interior ones, else 0.0 (collective)."""
         return self.interior(phi).astype(np.float64)
 
-    def masks(self, phi: np.ndarray, speed: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    def masks(self, phi: np.ndarray, velocity: np.ndarray | None = None, unit_speed: float = 1.0,
+              out: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``deep`` and ``by_parts`` on the local functions, from one pass over the cells, given each function's
-        speed over ``sqrt(|g| h)`` (None: still water, as without gravity; collective)."""
-        shallow, ramps = self._summed(phi, by_parts=True)
-        deep, by_parts = np.empty(len(shallow)), np.empty(len(shallow))
-        _masks(shallow, ramps, np.exp(ramps[:, 0]), np.exp(ramps[:, 2]), np.empty(0) if speed is None else speed,
-               *STILL_SPEEDS, deep, by_parts)
+        velocity ``(n, 2)`` and the speed ``sqrt(|g| h)`` its speed is measured in (None: still water, as without
+        gravity); into the two arrays ``out`` if given (collective)."""
+        deep_cells, ramps = self._counted(phi, by_parts=True)
+        deep, by_parts = out if out is not None else (np.empty(len(phi)), np.empty(len(phi)))
+        _masks(self._support, deep_cells, ramps, np.exp(ramps[:, 0]), np.exp(ramps[:, 2]),
+               np.empty((0, 2)) if velocity is None else velocity, unit_speed, *STILL_SPEEDS, deep, by_parts)
         return deep, by_parts
 
 
 @numba.njit(cache=True)
-def _masks(shallow, ramps, still_product, moving_product, speed, slow, fast, deep, by_parts):
-    """``deep`` where no cell is shallow; ``by_parts``: each ramp's product over the cells (zero where one of
-    them is zero), the still one's blended into the moving one's as the speed rises from ``slow`` to ``fast``
-    (the still one alone without speeds)."""
+def _masks(support, deep_cells, ramps, still_product, moving_product, velocity, unit_speed, slow, fast, deep, by_parts):
+    """``deep`` where every cell of the support is deep; ``by_parts``: each ramp's product over the cells (zero
+    where one of them is zero), the still one's blended into the moving one's as the speed ``|v| / unit_speed``
+    rises from ``slow`` to ``fast`` (the still one alone without velocities)."""
     for i in range(deep.shape[0]):
-        deep[i] = 1.0 if shallow[i] == 0 else 0.0
-        still = 0.0 if ramps[i, 1] > 0 else still_product[i]
-        if speed.shape[0] == 0:
+        deep[i] = 1.0 if support[i] - deep_cells[i] == 0 else 0.0
+        still = 0.0 if support[i] - ramps[i, 1] > 0 else still_product[i]
+        if velocity.shape[0] == 0:
             by_parts[i] = still
             continue
-        moving = 0.0 if ramps[i, 3] > 0 else moving_product[i]
-        share = min(max((fast - speed[i]) / (fast - slow), 0.0), 1.0)
+        moving = 0.0 if support[i] - ramps[i, 3] > 0 else moving_product[i]
+        speed = np.sqrt(velocity[i, 0] * velocity[i, 0] + velocity[i, 1] * velocity[i, 1]) / unit_speed
+        share = min(max((fast - speed) / (fast - slow), 0.0), 1.0)
         by_parts[i] = moving + share * (still - moving)
 
 
@@ -145,7 +141,9 @@ def _sum_cells(centre_values, cell_functions, phi, blocked, ramps, deep, sums):
     1 to ``deep`` if it is at or above :data:`DEEP`, and unless ``sums`` is empty, for each ramp ``k`` of
     ``ramps`` (rows ``(none, full)``) whose ``clip((phi - none) / (full - none), 0, 1)`` is above zero and the
     cell not ``blocked``, its logarithm to ``sums[:, 2k]`` and 1 to ``sums[:, 2k + 1]``. A cell that adds
-    nothing (dry, or nearly) is left after its centre."""
+    nothing (dry, or nearly) is left after its centre. ``deep`` and ``sums`` are zeroed first."""
+    deep[:] = 0.0
+    sums[:] = 0.0
     by_parts = sums.shape[0] > 0
     logs = np.empty(ramps.shape[0])
     for c in range(cell_functions.shape[0]):

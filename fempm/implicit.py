@@ -271,10 +271,8 @@ class ImplicitSolver(Stepper):
         phi = rho[:, 0] / self._reference_density  # the wet fraction (fempm.density)
         if s.constants["by_parts"] or s.constants["split"]:  # the weight of the work by parts, the correction's deep water
             g = self._gravity
-            v = s.fields["grid_velocity"].values
-            speed = (np.sqrt(v[:, 0] * v[:, 0] + v[:, 1] * v[:, 1]) / np.sqrt(g * self.grid.h)
-                     if g > 0 else None)
-            s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0] = self._deep_water.masks(phi, speed)
+            self._deep_water.masks(phi, s.fields["grid_velocity"].values if g > 0 else None, np.sqrt(g * self.grid.h),
+                                   out=(s.fields["deep"].values[:, 0], s.fields["by_parts"].values[:, 0]))
             known = s.fields["known_pressure"].values[:, 0]  # what the split takes by parts (fempm.hydrostatic)
             if self._hydrostatic is not None:
                 known[:] = self._hydrostatic(phi)

@@ -40,7 +40,8 @@ def _weight(top: float, obstacle: bool = False, open_sides=(), speed: float | No
     basis = fempm.BSpline2(grid)
     wet = WetFraction(basis)
     phi = wet(water).values[:, 0]
-    _, weight = density.DeepWater(wet.field.space, open_sides).masks(phi, None if speed is None else np.full(len(phi), speed))
+    velocity = None if speed is None else np.column_stack([np.full(len(phi), speed), np.zeros(len(phi))])
+    _, weight = density.DeepWater(wet.field.space, open_sides).masks(phi, velocity)
     f = wet.field.space.numbering.local_functions
     return weight, f // basis.nfx, f % basis.nfx
 
