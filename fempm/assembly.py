@@ -483,14 +483,16 @@ def assemble_scalar(kernel, x, weight, coeffs, consts, h):
 
 
 @numba.njit(cache=True)
-def pack_jets(phi, lfun, values, index, out):
+def pack_jets(phi, lfun, values, index, zero, out):
     """``out[p, index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: the jets of grid functions
     (their coefficients side by side in ``values``) at the particles, written where a form's kernel
-    reads them."""
+    reads them; ``out[p, zero] = 0`` (the jets of functions known to be zero)."""
     n, nq, nl = phi.shape
     bs = values.shape[1]
     jets = np.empty((nq, bs))
     for p in range(n):
+        for k in range(zero.shape[0]):
+            out[p, zero[k]] = 0.0
         particle_jets(phi[p], lfun[p], values, jets)
         for a in range(nq):
             for c in range(bs):

@@ -81,6 +81,7 @@ def _cpu_tag() -> str:
 _JIT_OPTIONS = {"cffi_extra_compile_args": ["-O3", "-march=native", "-ffp-contract=off", f"-DFEMPM_CPU={_cpu_tag()}"]}
 _REGULAR, _LUMPED, _FIXED = 0, 1, 2  # subdomain ids of s.dx, s.dx_lumped and s.dx_fixed on the jet cell
 _ffi = FFI()
+_NO_VALUES = np.zeros((1, 0))  # the coefficients of no grid function (all are zero): no jets to take
 
 
 # --------------------------------------------------------------------------------------
@@ -388,10 +389,8 @@ class _Coefficients:
         values = tuple(self.grid_functions[name].values for name, _ in self._grid_parts)
         nonzero = assembly.nonzero_arrays(values)
         slots, zero = self._slots_of(nonzero)
-        out[:, zero] = 0.0
-        if slots.size:
-            assembly.pack_jets(phi, lfun, assembly.side_by_side(v for v, keep in zip(values, nonzero) if keep), slots,
-                               out)
+        kept = assembly.side_by_side(v for v, keep in zip(values, nonzero) if keep) if slots.size else _NO_VALUES
+        assembly.pack_jets(phi, lfun, kept, slots, zero, out)
         return out
 
     def _slots_of(self, nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
