@@ -262,7 +262,7 @@ class ImplicitSolver(Stepper):
         p, s, c = self.particles, self.system, self.controls
         p2g = transfer.project_state(p, self.scheme.transfer, self._p2g)
         rho = s.fields["smoothed_density"].values
-        rho[:] = transfer.smoothed_density(p2g.field("m"), self._integrals[:, None])
+        transfer.smoothed_density(p2g.field("m"), self._integrals[:, None], out=rho)
         keep = np.empty((s.scalar_space.numbering.num_owned, s.space.bs), dtype=np.bool_)
         _grid_state(p2g.values, *(p2g.space.field_offset(name) for name in ("m", "mv", "ma", "count")), rho[:, 0],
                     self._reference_density, c.min_support_fraction, c.min_pressure_support,

@@ -284,15 +284,12 @@ class LinearSolver:
             SolveFailed: the solver reports failure or the solution is not finite.
         """
         free = np.asarray(free, dtype=PETSc.IntType)
-        if self.cuts_blocks and A.getAttr("fempm_grid_matrix") is not None:
+        grid = A.getAttr("fempm_grid_matrix") if self.cuts_blocks else None
+        if grid is not None:
             if self.compiles_small and _compiled_size(len(free)):
-                values = np.empty(b.getLocalSize())
-                if small_system.solve(A.getAttr("fempm_grid_matrix"), free, b.getArray(readonly=True), EXACT_RTOL,
-                                      values) > 0:
+                x = b.duplicate() if x is None else x
+                if small_system.solve(grid, free, b.getArray(readonly=True), EXACT_RTOL, x.getArray()) > 0:
                     self.compiled += 1
-                    if x is None:
-                        x = b.duplicate()
-                    x.setArray(values)
                     return x
                 self.compiled_declined += 1
             return self._solve_blocks(A, b, free, x)

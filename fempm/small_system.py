@@ -28,6 +28,8 @@ checkpoint solves as the uninterrupted run does.
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -381,7 +383,7 @@ def solve(grid_matrix, free: np.ndarray, b: np.ndarray, rtol: float, x: np.ndarr
     if space.bs != 3:
         raise ValueError(f"the compiled solve takes two velocity components and a pressure, not {space.bs} dofs "
                          "a function")
-    reach = (int(np.sqrt(lay.stencil.shape[1]) + 0.5) - 1) // 2
+    reach = (math.isqrt(lay.stencil.shape[1]) - 1) // 2
     reals, integers = _scratch(len(free), lay.stencil.shape[1], 4 * reach + 1)
     return int(_solve(lay.indptr, lay.columns, grid_matrix.values, lay.stencil, space.basis.nfx, reach,
                       np.asarray(free, dtype=np.int64), b, rtol, max_it, x, reals, integers))

@@ -208,12 +208,14 @@ class GridSystem:
                     if iteration > 0 and norm <= c.newton_rtol * max(r0, 1e-300):
                         break
                     J = forms.jacobian.assemble_matrix(particles, J)
-            if self._delta_of is not J:  # a new matrix (the first, or a widened region)
+            if self._delta_of is not J:  # a new matrix (the first, or a widened region); the view of its values
                 self._delta, self._delta_of = J.createVecLeft(), J
+                self._delta_values = self._delta.getArray(readonly=True)
             with self.timings("solve"):
-                R.petsc_vec.scale(-1.0)
-                delta = self.linear_solver.solve(J, R.petsc_vec, free, self._delta)
-                u[: self.space.num_owned_dofs] += delta.getArray(readonly=True)
+                rhs = R.petsc_vec
+                rhs.scale(-1.0)
+                self.linear_solver.solve(J, rhs, free, self._delta)
+                u[: self.space.num_owned_dofs] += self._delta_values
                 U.scatter_forward()
             self.newton_iterations += 1
             if not _all_finite(u):
@@ -241,7 +243,7 @@ class GridSystem:
             return forms.residual.assemble_vector(particles, self._R).array[rows] - excess
         # the solve scaled R(U_0) by -1; delta = U - U_0
         gm = self._delta_of.getAttr("fempm_grid_matrix")
-        product = gm.multiply(self._delta.getArray(readonly=True), rows) if gm is not None else None
+        product = gm.multiply(self._delta_values, rows) if gm is not None else None
         if product is None:
             whole = self._delta_of.createVecLeft()
             self._delta_of.mult(self._delta, whole)

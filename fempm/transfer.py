@@ -113,9 +113,10 @@ def momentum(space: Space, particles, out: GridFunction | None = None) -> GridFu
                              out=out)
 
 
-def smoothed_density(mass: np.ndarray, integrals: np.ndarray) -> np.ndarray:
-    """``rho~_i = m_i / int N_i dx`` (method.md eq. 2) from the nodal masses ``m_i = sum_p m_p N_i(x_p)``."""
-    return mass / integrals
+def smoothed_density(mass: np.ndarray, integrals: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """``rho~_i = m_i / int N_i dx`` (method.md eq. 2) from the nodal masses ``m_i = sum_p m_p N_i(x_p)`` (into
+    ``out`` if given)."""
+    return np.divide(mass, integrals, out=out)
 
 
 def density_normalisation(basis, particles, blocked: bool = True) -> np.ndarray:
