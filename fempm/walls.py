@@ -32,6 +32,8 @@ no sign to separate by, and every wall dof stays held (two-sided). Moving walls 
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 
@@ -149,7 +151,7 @@ class Walls:
         displacement into a wall below which a free dof stays free, ``SPEED_TOLERANCE sqrt(|g| h) dt``;
         ``|g|`` at least 1 m/s^2 (a case without gravity keeps a scale)."""
         g, h = self._gravity, self.space.grid.h
-        return FORCE_TOLERANCE * density * g * h**2, SPEED_TOLERANCE * np.sqrt(g * h) * dt
+        return FORCE_TOLERANCE * density * g * h**2, SPEED_TOLERANCE * math.sqrt(g * h) * dt
 
     def start_step(self, keep: np.ndarray, velocity: GridFunction):
         """This step's held dofs, before the projected ``v_n`` is overwritten on them (collective).
@@ -162,17 +164,10 @@ class Walls:
         """
         if not self.one_sided or not self._any_contact:
             return
-        kept = keep.reshape(-1, self.space.bs)[:, self.space.field_offset(self.field)]
-        self.free_surface = collective.any_rank(self.space.comm, not kept.all())
-        if not self.free_surface:
-            self.active[:] = True
-        else:
-            incoming = velocity.array[self._normal_in_vector] * self.sign
-            self.active |= ~self.wet
-            self._entering = incoming > self.tolerances(0.0, 1.0)[1]
-            self.active |= self._entering
-        self.wet = keep[self.normal].copy()
-        self._let_go = np.zeros(len(self.normal), dtype=bool)  # released within this step (settle)
+        all_kept = _all_kept(keep, self.space.bs, self.space.field_offset(self.field))
+        self.free_surface = collective.any_rank(self.space.comm, not all_kept)
+        _start_active(self.free_surface, keep, velocity.array, self.normal, self._normal_in_vector, self.sign,
+                      self.tolerances(0.0, 1.0)[1], self.active, self.wet, self._entering, self._let_go)
         self._set_held()
 
     def settle(self, reaction: np.ndarray, displacement: np.ndarray, density: float, dt: float) -> bool:
@@ -189,13 +184,10 @@ class Walls:
             return False
         force, motion = self.tolerances(density, dt)
         cell_weight = force / FORCE_TOLERANCE  # rho |g| h^2
-        pull = self.active & ~self._entering & (reaction * self.sign > STRONG_PULL * cell_weight)
-        back = self._let_go & ~self.active & (displacement[self.normal] * self.sign > motion)
-        count = int(np.count_nonzero(pull))
-        if collective.total(self.space.comm, count + int(np.count_nonzero(back))) == 0:
+        count, back = _settle(self.active, self._entering, self._let_go, reaction, displacement, self.normal, self.sign,
+                              STRONG_PULL * cell_weight, motion)
+        if collective.total(self.space.comm, count + back) == 0:
             return False
-        self.active[pull], self.active[back] = False, True
-        self._let_go |= pull
         self.released += count
         self._set_held()
         return True
@@ -214,11 +206,7 @@ class Walls:
             self._gather_state()
             return
         force, motion = self.tolerances(density, dt)
-        pull = self.active & (reaction * self.sign > force)
-        enter = ~self.active & (displacement[self.normal] * self.sign > motion)
-        self.active[pull] = False
-        self.active[enter] = True
-        self.released += int(np.count_nonzero(pull))
+        self.released += _update_active(self.active, reaction, displacement, self.normal, self.sign, force, motion)
         self._gather_state()
 
     def _gather_state(self):
@@ -316,6 +304,63 @@ class Walls:
 
 
 @numba.njit(cache=True)
+def _all_kept(keep, bs, component):
+    """Whether ``keep`` (boolean per owned dof, ``bs`` a function) holds for ``component`` of every function."""
+    for i in range(component, keep.shape[0], bs):
+        if not keep[i]:
+            return False
+    return True
+
+
+@numba.njit(cache=True)
+def _start_active(free_surface, keep, velocity, normal, normal_in_vector, sign, entering_speed, active, wet, entering,
+                  let_go):
+    """:meth:`Walls.start_step` on the contact dofs ``normal`` (in place): without a free surface all held; with one,
+    those dry last step (not ``wet``) and those whose projected ``velocity`` (a two-component function's values,
+    ``normal_in_vector``) enters the wall faster than ``entering_speed`` held too. Then ``wet`` from ``keep`` and
+    no dof let go yet."""
+    for i in range(normal.shape[0]):
+        if not free_surface:
+            active[i] = True
+        else:
+            entering[i] = velocity[normal_in_vector[i]] * sign[i] > entering_speed
+            active[i] = active[i] or not wet[i] or entering[i]
+        wet[i] = keep[normal[i]]
+        let_go[i] = False
+
+
+@numba.njit(cache=True)
+def _settle(active, entering, let_go, reaction, displacement, normal, sign, strong_pull, motion):
+    """:meth:`Walls.settle`'s changes, in place: an active contact dof not entering whose reaction pulls above
+    ``strong_pull`` released (and let go), one let go in this step that moved into the wall beyond ``motion``
+    held again; returns how many of each."""
+    pulled = back = 0
+    for i in range(normal.shape[0]):
+        if active[i] and not entering[i] and reaction[i] * sign[i] > strong_pull:
+            active[i], let_go[i] = False, True
+            pulled += 1
+        elif let_go[i] and not active[i] and displacement[normal[i]] * sign[i] > motion:
+            active[i] = True
+            back += 1
+    return pulled, back
+
+
+@numba.njit(cache=True)
+def _update_active(active, reaction, displacement, normal, sign, force, motion):
+    """:meth:`Walls.update`'s changes, in place: a held contact dof whose reaction pulls above ``force`` released, a
+    free one that moved into the wall beyond ``motion`` held; returns how many were released."""
+    released = 0
+    for i in range(normal.shape[0]):
+        if active[i]:
+            if reaction[i] * sign[i] > force:
+                active[i] = False
+                released += 1
+        elif displacement[normal[i]] * sign[i] > motion:
+            active[i] = True
+    return released
+
+
+@numba.njit(cache=True)
 def _held_positions(owned, fixed, normal, partner, active, bs, first):
     """The held dofs by position among the ``owned`` ones (increasing): the ``fixed`` ones, the ``active``
     contact dofs (``normal``) and their tangential ``partner`` (-1: none); and the same dofs in a two-component
@@ -398,14 +443,25 @@ class FreeDofs:
         owns_corner = 0 <= corner < space.numbering.num_owned
         self._pin = corner * space.bs + self._pressure if owns_corner else None
         self._closed = walls.physics.closed
+        self._owned = space.local_to_global[: space.num_owned_dofs]
         self.mask = np.ones(space.num_owned_dofs, dtype=bool)
 
     def select(self, keep: np.ndarray) -> np.ndarray:
         """Global numbers of the free dofs, given ``keep`` (boolean per owned dof; changed in place)."""
-        keep[self.walls.positions] = False
-        if self._closed:
-            pressure_held = int(np.count_nonzero(~keep.reshape(-1, self.space.bs)[:, self._pressure]))
-            if collective.total(self.space.comm, pressure_held) == 0 and self._pin is not None:
-                keep[self._pin] = False
+        pressure_held = _hold(keep, self.walls.positions, self.space.bs, self._pressure)
+        if self._closed and collective.total(self.space.comm, pressure_held) == 0 and self._pin is not None:
+            keep[self._pin] = False
         self.mask = keep
-        return self.space.local_to_global[: self.space.num_owned_dofs][keep]
+        return self._owned[keep]
+
+
+@numba.njit(cache=True)
+def _hold(keep, positions, bs, component):
+    """``keep`` false at ``positions`` (in place); returns at how many functions (``bs`` dofs each) ``keep`` is false
+    for ``component``."""
+    for i in positions:
+        keep[i] = False
+    held = 0
+    for i in range(component, keep.shape[0], bs):
+        held += not keep[i]
+    return held
