@@ -64,8 +64,8 @@ def mechanical_energy(particles, gravity, datum) -> float:
 
     With ``datum`` the :func:`lowest_corner`, E >= 0; gravity and walls at rest can only
     take it away (viscosity, the scheme's dissipation)."""
-    g, d = np.asarray(gravity, dtype=float), np.asarray(datum, dtype=float)
-    local = _energy(particles.x, particles["velocity"], particles["mass"], g[0], g[1], d[0], d[1])
+    (gx, gy), (x0, y0) = gravity, datum
+    local = _energy(particles.x, particles["velocity"], particles["mass"], float(gx), float(gy), float(x0), float(y0))
     return collective.total(particles.grid.comm, local)
 
 

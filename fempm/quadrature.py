@@ -55,7 +55,7 @@ from fempm.bases import jet_indices
 from fempm.errors import InputError
 from fempm.lagrange import extraction_matrix, lagrange_space
 from fempm.matrix import create_matrix, grid_matrix, layout
-from fempm.space import GridFunction, Space
+from fempm.space import GridFunction, Space, vector_values
 
 __all__ = ["GaussForm", "ParticleForm", "Symbols"]
 
@@ -510,9 +510,9 @@ class ParticleForm:
     def _function_sums(self, phi0, lfun, weight, coeffs, slots) -> np.ndarray:
         """``[W_f, sum_p w_p N_f(x_p) c_p]`` per local function, summed over all ranks; ``c_p`` the
         particle fields, columns ``slots`` of ``coeffs``."""
-        if self._nodal_sums is None:  # the vector and its table, made once (DOLFINx makes a new view at each .array)
+        if self._nodal_sums is None:  # the vector and its table, made once
             sums = dolfinx.la.vector(self.space.numbering.index_map, 1 + len(slots))
-            self._nodal_sums = sums, sums.array.reshape(-1, 1 + len(slots))
+            self._nodal_sums = sums, vector_values(sums).reshape(-1, 1 + len(slots))
         sums, table = self._nodal_sums
         table[:] = 0.0
         assembly.nodal_sums(phi0, lfun, weight, coeffs, slots, table)
@@ -604,7 +604,7 @@ class ParticleForm:
         extra = None
         if alongside is not None:
             form, out, where = alongside
-            out_values = out.array
+            out_values = vector_values(out)
             out_values[:] = 0.0
             extra = (form._kernels[_REGULAR], out_values, form._constants_now(), form._perm, form._columns_in(residual),
                      where)
@@ -683,11 +683,10 @@ class ParticleForm:
         return target
 
     def _zeroed_vector(self, b: dolfinx.la.Vector | None) -> tuple[dolfinx.la.Vector, np.ndarray]:
-        """``b`` (a new vector of the space if None), zeroed, and its values (one view: DOLFINx makes a new one
-        at each ``.array``)."""
+        """``b`` (a new vector of the space if None), zeroed, and its values."""
         if b is None:
             b = self.space.create_vector()
-        values = b.array
+        values = vector_values(b)
         values[:] = 0.0
         return b, values
 

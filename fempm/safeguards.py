@@ -6,6 +6,8 @@ Each raises :class:`~fempm.linear.SolveFailed` with a diagnosis; the stepper tur
 
 from __future__ import annotations
 
+import math
+
 import numba
 import numpy as np
 from mpi4py import MPI
@@ -52,12 +54,12 @@ class PressureCheck:
 
     def __call__(self, pressure: np.ndarray, dt: float):
         extremes = _extremes(np.ravel(pressure))  # one reduction for both
-        if not np.isfinite(extremes.sum()):
+        if not math.isfinite(extremes[0] + extremes[1]):
             extremes[:] = np.inf  # NaN on one rank: not finite on all
         if self.comm.size > 1:
             self.comm.Allreduce(MPI.IN_PLACE, extremes, op=MPI.MAX)
         low, high = -float(extremes[0]), float(extremes[1])
-        if not np.isfinite(low + high):
+        if not math.isfinite(low + high):
             raise SolveFailed("the pressure is not finite")
         if -low > self.tension_limit:
             raise SolveFailed(f"{self.label}: p reached {low:.3g} Pa, a tension beyond the limit "

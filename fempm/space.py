@@ -15,6 +15,7 @@ DOLFINx ``IndexMap``, so vectors are DOLFINx ``la.Vector`` objects whose
 
 from __future__ import annotations
 
+import weakref
 from functools import cached_property
 
 import numpy as np
@@ -25,7 +26,7 @@ from dolfinx.common import IndexMap
 from fempm.bases import Basis
 from fempm.errors import InputError
 
-__all__ = ["GridFunction", "Numbering", "Space"]
+__all__ = ["GridFunction", "Numbering", "Space", "vector_values"]
 
 
 class Numbering:
@@ -217,6 +218,18 @@ class Space:
         return dolfinx.la.vector(self.numbering.index_map, self.bs)
 
 
+_VALUES = weakref.WeakKeyDictionary()  # vector -> its values' view (vector_values)
+
+
+def vector_values(vector: dolfinx.la.Vector) -> np.ndarray:
+    """``vector.array``, the view made once per vector: DOLFINx makes a new one at each access (about a
+    microsecond), and a vector's storage never moves."""
+    values = _VALUES.get(vector)
+    if values is None:
+        values = _VALUES[vector] = vector.array
+    return values
+
+
 class GridFunction:
     """Coefficients of a :class:`Space` on this rank's local functions (owned and ghost).
 
@@ -228,8 +241,7 @@ class GridFunction:
         self.space = space
         self.name = name
         self.vector = space.create_vector()
-        # the vector's storage never moves: one view, not a new one per access (DOLFINx makes one each time)
-        self._array = self.vector.array
+        self._array = vector_values(self.vector)
         self._values = self._array.reshape(-1, space.bs)
 
     @property

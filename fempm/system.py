@@ -22,7 +22,7 @@ from fempm.linear import LinearSolver, SolveFailed
 from fempm.options import Controls, Physics, Scheme
 from fempm.particles import ParticleSubset
 from fempm.quadrature import ParticleForm
-from fempm.space import GridFunction, Space
+from fempm.space import GridFunction, Space, vector_values
 from fempm.timing import PhaseTimes
 from fempm.walls import FreeDofs, Walls
 
@@ -158,10 +158,12 @@ class GridSystem:
         self.linear_solver = LinearSolver(self.comm, "fempm_", controls.petsc_options, fields=self.space.fields)
         self.newton_iterations = 0
         self._R = self.space.create_vector()
-        self._R_values = self._R.array  # its view, made once (DOLFINx makes a new one at each .array)
+        self._R_values = vector_values(self._R)
         self._rows_marked = GridFunction(self.scalar_space, "reaction_rows")  # see _adding_to
         self._delta, self._delta_of = None, None
         self._excess, self._excess_assembled = None, False  # the wall force excess of the solve's pass
+        self._end = None  # end_state's arrays
+        self._touching_of = (None, None)  # (rows, their functions): _touching_rows
 
     @property
     def dt(self) -> float:
@@ -264,8 +266,10 @@ class GridSystem:
     def _touching_rows(self, rows: np.ndarray, particles) -> np.ndarray:
         """Which particles have a basis function among those of the owned dofs ``rows`` (collective)."""
         marked = self._rows_marked
+        if self._touching_of[0] is not rows:  # the walls' contact dofs, the same array step after step
+            self._touching_of = (rows, rows // self.space.bs)
         marked.values[:] = 0.0
-        marked.values[rows // self.space.bs, 0] = 1.0
+        marked.values[self._touching_of[1], 0] = 1.0
         marked.scatter_forward()  # a rank's particles add to the ghosts of other ranks' rows
         _, functions = self.scalar_space.tabulate_particles(particles, 0, exact=False)
         return _touching(marked.values[:, 0], functions)
@@ -282,11 +286,13 @@ class GridSystem:
         return float(np.sqrt(collective.total(self.comm, float(np.einsum("i,i->", local, local)))))
 
     def end_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """``v_{n+1}`` and ``a_{n+1}`` on the grid from the solved ``du`` (Newmark); keeps ``v_{n+1}``
-        and the pressure in :attr:`velocity` and :attr:`pressure`."""
+        """``v_{n+1}`` and ``a_{n+1}`` on the grid from the solved ``du`` (Newmark; arrays the next call
+        overwrites); keeps ``v_{n+1}`` and the pressure in :attr:`velocity` and :attr:`pressure`."""
         s = self.scheme
         v, a = self.fields["grid_velocity"].values, self.fields["grid_acceleration"].values
-        v_new, a_new = np.empty_like(v), np.empty_like(a)
+        if self._end is None:
+            self._end = np.empty_like(v), np.empty_like(a)
+        v_new, a_new = self._end
         _end_state(self.U.field("u"), v, a, float(self.dt), float(s.beta), float(s.gamma), v_new, a_new)
         self.velocity.values[:] = v_new
         self.pressure.values[:] = self.U.field("p")
