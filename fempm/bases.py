@@ -37,6 +37,8 @@ from fempm.grid import Grid
 
 __all__ = ["BASES", "Basis", "BSpline2", "Q1", "jet_indices"]
 
+_NO_NUMBERS = np.zeros(0, dtype=np.int64)  # cell_functions without a renumbering
+
 
 def jet_indices(order: int) -> list[tuple[int, int]]:
     """Multi-indices ``(a, b)`` of the jet of the given order, in fempm's order.
@@ -74,13 +76,14 @@ def _jet_array(order: int) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _cell_functions(cells, nx, nfx, offsets, out):
+def _cell_functions(cells, nx, nfx, offsets, numbers, out):
     """``out[p, l]``: the structured number of local function ``l`` of cell ``cells[p]`` (its first
-    function ``i + nfx j`` plus ``offsets[l]``)."""
+    function ``i + nfx j`` plus ``offsets[l]``), or ``numbers`` of it unless that is empty."""
+    renumber = numbers.shape[0] > 0
     for p in range(cells.shape[0]):
         first = cells[p] % nx + nfx * (cells[p] // nx)
         for l in range(offsets.shape[0]):
-            out[p, l] = first + offsets[l]
+            out[p, l] = numbers[first + offsets[l]] if renumber else first + offsets[l]
 
 
 @numba.njit(cache=True)
@@ -148,14 +151,16 @@ class Basis:
         t, k = self.knots(n, last), self.degree
         return (t[k + 1:] - t[: -(k + 1)]) / (k + 1)
 
-    def cell_functions(self, cells) -> np.ndarray:
-        """Global (structured) indices of the functions non-zero in each cell.
+    def cell_functions(self, cells, numbers: np.ndarray | None = None) -> np.ndarray:
+        """Global (structured) indices of the functions non-zero in each cell, or ``numbers`` of them (an
+        array indexed by structured index: a renumbering).
 
         Shape ``(n, (k+1)^2)``, local number ``a + (k+1) * b``.
         """
         cells = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1)
-        out = np.empty((len(cells), self.functions_per_cell), dtype=np.int64)
-        _cell_functions(cells, self.grid.nx, self.nfx, self._cell_offsets, out)
+        numbers = _NO_NUMBERS if numbers is None else numbers
+        out = np.empty((len(cells), self.functions_per_cell), dtype=numbers.dtype)
+        _cell_functions(cells, self.grid.nx, self.nfx, self._cell_offsets, numbers, out)
         return out
 
     @cached_property

@@ -82,8 +82,8 @@ class DeepWater:
         those (a cell blocked, an obstacle's whose face the basis does not resolve, or along an open side has a
         ramp of zero; owned and ghost, up to date; collective)."""
         sums = [self._deep_cells] + ([self._ramps] if by_parts else [])
-        _sum_cells(self.centre_values, self.cell_functions, phi, self._unresolved, _RAMPS, self._deep_cells.values[:, 0],
-                   self._ramps.values if by_parts else np.zeros((0, 4)))
+        _sum_cells(self.centre_values, self.cell_functions, phi, self._unresolved, _RAMPS,
+                   self._deep_cells.values[:, 0], self._ramps.values if by_parts else np.zeros((0, 4)))
         for f in sums:
             f.scatter_reverse_add()
             f.scatter_forward()

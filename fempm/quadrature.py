@@ -524,8 +524,8 @@ class ParticleForm:
         return tuple(self.symbols._particle_shapes[name])
 
     def _basis_values(self, particles) -> np.ndarray:
-        """``N_l(x_p)``, ``(n, (k+1)^2)`` contiguous (the space keeps it for the step)."""
-        return self.space.tabulate_particles(particles, 0)[0][:, 0, :]
+        """``N_l(x_p)``, ``(n, (k+1)^2)`` (a view of the step's tabulation)."""
+        return self.space.tabulate_particles(particles, 0, exact=False)[0][:, 0, :]
 
     def _particle_data(self, particles):
         phi, lfun = self.space.tabulate_particles(particles, self.order)

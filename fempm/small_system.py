@@ -386,7 +386,13 @@ def solve(grid_matrix, free: np.ndarray, b: np.ndarray, rtol: float, x: np.ndarr
     reach = (math.isqrt(lay.stencil.shape[1]) - 1) // 2
     reals, integers = _scratch(len(free), lay.stencil.shape[1], 4 * reach + 1)
     return int(_solve(lay.indptr, lay.columns, grid_matrix.values, lay.stencil, space.basis.nfx, reach,
-                      np.asarray(free, dtype=np.int64), b, rtol, max_it, x, reals, integers))
+                      _integers(free), b, rtol, max_it, x, reals, integers))
+
+
+def _integers(free) -> np.ndarray:
+    """``free`` as an array of integers, of its own width if it is one (PETSc's dofs: no copy)."""
+    free = np.asarray(free)
+    return free if free.dtype.kind == "i" else free.astype(np.int64)
 
 
 #: the solves' scratch memory (reals, integers), kept from call to call: the same memory, still in cache, rather

@@ -179,7 +179,7 @@ class Space:
 
     def local_functions_of_cells(self, cells: np.ndarray) -> np.ndarray:
         """Local function numbers of the functions non-zero in each (local) cell."""
-        return self.numbering.local_index[self.basis.cell_functions(cells)]
+        return self.basis.cell_functions(cells, self.numbering.local_index)
 
     def tabulate_particles(self, particles, order: int = 1, exact: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Jets of the basis at the particles and their local function numbers.

@@ -464,7 +464,7 @@ def project_state(particles, kind: str, out: GridFunction) -> GridFunction:
         mass = particles["mass"][:, None]
         values = np.hstack([mass, mass * particles["velocity"], mass * particles["acceleration"]])
         return particles_to_grid(out.space, particles, values, counts=True, out=out)
-    phi, lfun = out.space.tabulate_particles(particles, order=0)
+    phi, lfun = out.space.tabulate_particles(particles, order=0, exact=False)
     out.values[:] = 0.0
     _scatter_state(phi, lfun, function_nodes(out.space), np.ascontiguousarray(particles.x), particles["mass"],
                    particles["velocity"], particles["acceleration"], particles[AFFINE_FIELDS[0]],

@@ -36,6 +36,7 @@ import math
 
 import numba
 import numpy as np
+from petsc4py import PETSc
 
 from fempm import collective
 from fempm.options import Physics
@@ -443,7 +444,7 @@ class FreeDofs:
         owns_corner = 0 <= corner < space.numbering.num_owned
         self._pin = corner * space.bs + self._pressure if owns_corner else None
         self._closed = walls.physics.closed
-        self._owned = space.local_to_global[: space.num_owned_dofs]
+        self._owned = space.local_to_global[: space.num_owned_dofs].astype(PETSc.IntType)  # as PETSc numbers dofs
         self.mask = np.ones(space.num_owned_dofs, dtype=bool)
 
     def select(self, keep: np.ndarray) -> np.ndarray:
