@@ -132,6 +132,13 @@ def _mark(functions, written):
 
 
 @numba.njit(cache=True)
+def _mark_positive(weights, written):
+    for f in range(weights.shape[0]):
+        if weights[f] > 0.0:
+            written[f] = True
+
+
+@numba.njit(cache=True)
 def _zero_rows(written, indptr, bs, values):
     """Zero the rows of the written functions and forget them."""
     for f in range(written.shape[0]):
@@ -191,6 +198,11 @@ class GridMatrix:
         """Record that the rows of these local functions (any shape) were filled since :meth:`zero`."""
         if self._written is not None:
             _mark(np.ascontiguousarray(functions), self._written)
+
+    def mark_written_where(self, weights: np.ndarray):
+        """Record that the rows of the local functions ``f`` with ``weights[f] > 0`` were filled since :meth:`zero`."""
+        if self._written is not None:
+            _mark_positive(weights, self._written)
 
     def multiply(self, x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray | None:
         """``A x`` at the owned ``rows`` (default all) on one rank when the written rows are known

@@ -711,7 +711,7 @@ class ParticleForm:
         if self._lumped_affine:
             if sums is None:
                 sums = self._function_sums(self._basis_values(particles), lfun, weight, coeffs, slots)
-            target.mark_written(np.flatnonzero(sums[: self.space.numbering.num_owned, 0] > 0.0))  # other ranks' too
+            target.mark_written_where(sums[: self.space.numbering.num_owned, 0])  # other ranks' too
             assembly.assemble_matrix_nodal_affine(
                 self._kernels[_LUMPED], target.values, lay.indptr, lay.stencil,
                 sums, self.space.numbering.num_owned,

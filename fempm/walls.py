@@ -213,9 +213,10 @@ class Walls:
     def _gather_state(self):
         """Every rank's released and dry contact dofs (structured numbers: the same whatever the
         ranks), by rank; sorted into lists only when a checkpoint asks (:meth:`contact_state`)."""
-        ids, comm = self._contact_ids, self.space.comm
-        gather = lambda mask: comm.allgather(ids[mask]) if comm.size > 1 else [ids[mask]]  # noqa: E731
-        self._state = {"walls_released": gather(~self.active), "walls_dry": gather(~self.wet)}
+        released, dry = _released_and_dry(self._contact_ids, self.active, self.wet)
+        comm = self.space.comm
+        gather = lambda ids: comm.allgather(ids) if comm.size > 1 else [ids]  # noqa: E731
+        self._state = {"walls_released": gather(released), "walls_dry": gather(dry)}
 
     def contact_state(self) -> dict:
         """The active set after the last step: ``walls_released`` and ``walls_dry``, the structured
@@ -359,6 +360,12 @@ def _update_active(active, reaction, displacement, normal, sign, force, motion):
         elif displacement[normal[i]] * sign[i] > motion:
             active[i] = True
     return released
+
+
+@numba.njit(cache=True)
+def _released_and_dry(ids, active, wet):
+    """The ``ids`` of the contact dofs not ``active`` and of those not ``wet``, in order."""
+    return ids[~active], ids[~wet]
 
 
 @numba.njit(cache=True)
