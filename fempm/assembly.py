@@ -340,11 +340,10 @@ def assemble_vector(kernel, out, x, cell, weight, phi, lfun, coeffs, consts, per
 @numba.njit(cache=True)
 def _nodal_kernel(kernel, K, w, f, nodal, consts, coords):
     """``K`` = the kernel of coefficients ``w`` with every grid function taken at function ``f``:
-    its coefficient as the value, no derivatives (``nodal = (functions, slot_pos, slot_function, slot_col, zero_pos)``:
-    ``w[slot_pos[s]]`` is column ``slot_col[s]`` of the grid function ``functions[slot_function[s]]``)."""
-    functions, slot_pos, slot_function, slot_col, zero_pos = nodal
+    its coefficient as the value, no derivatives (``nodal = (G, slot_pos, slot_col, zero_pos)``)."""
+    G, slot_pos, slot_col, zero_pos = nodal
     for s in range(slot_pos.shape[0]):
-        w[slot_pos[s]] = functions[slot_function[s]][f, slot_col[s]]
+        w[slot_pos[s]] = G[f, slot_col[s]]
     for s in range(zero_pos.shape[0]):
         w[zero_pos[s]] = 0.0
     K[:] = 0.0

@@ -82,7 +82,6 @@ _JIT_OPTIONS = {"cffi_extra_compile_args": ["-O3", "-march=native", "-ffp-contra
 _REGULAR, _LUMPED, _FIXED = 0, 1, 2  # subdomain ids of s.dx, s.dx_lumped and s.dx_fixed on the jet cell
 _ffi = FFI()
 _NO_VALUES = np.zeros((1, 0))  # the coefficients of no grid function (all are zero): no jets to take
-_NO_FUNCTIONS = (np.zeros((1, 1)),)  # a form without grid functions: nothing for the lumped kernels to read
 
 
 # --------------------------------------------------------------------------------------
@@ -370,7 +369,6 @@ class _Coefficients:
             self._parts.append((kind, name, offset, size, index))
             offset += size
         self.width = max(offset, 1)  # as wide as what pack returns
-        self._grid_names = []  # the grid functions, in order (_positions)
         self._nodal_positions, self._particle_slots = self._positions()
         self._particle_parts = [(name, offset, size) for kind, name, offset, size, _ in self._parts if kind == "particle"]
         self._grid_parts = [(name, offset + index) for kind, name, offset, _, index in self._parts if kind != "particle"]
@@ -406,27 +404,28 @@ class _Coefficients:
         return self._jet_slots[key]
 
     def nodal_slots(self):
-        """For lumped integrals: the grid functions' coefficients, and where their values (``slot_pos`` <- column
-        ``slot_col`` of function ``slot_function``) and derivatives (``zero_pos``) go (read in place: no copy)."""
-        return (tuple(self.grid_functions[name].values for name in self._grid_names) or _NO_FUNCTIONS,
-                *self._nodal_positions)
+        """For lumped integrals: the grid functions' coefficients side by side, and where
+        their values (``slot_pos`` <- column ``slot_col``) and derivatives (``zero_pos``) go."""
+        columns = [self.grid_functions[name].values for kind, name, *_ in self._parts if kind != "particle"]
+        G = assembly.side_by_side(columns) if columns else np.zeros((1, 1))
+        return (G, *self._nodal_positions)
 
     def _positions(self):
-        """``slot_pos, slot_function, slot_col, zero_pos`` of :meth:`nodal_slots` and the particle fields' slots:
-        fixed by the form, worked out once."""
-        slot_pos, slot_function, slot_col, zero_pos, particle = [], [], [], [], []
+        """``slot_pos, slot_col, zero_pos`` of :meth:`nodal_slots` and the particle fields' slots: fixed
+        by the form, worked out once."""
+        slot_pos, slot_col, zero_pos, particle = [], [], [], []
+        column = 0
         for kind, name, offset, size, index in self._parts:
             if kind == "particle":
                 particle.extend(range(offset, offset + size))
                 continue
             bs = self.grid_functions[name].space.bs
             slot_pos.extend(offset + index[:, 0])
-            slot_function.extend([len(self._grid_names)] * bs)
-            slot_col.extend(range(bs))
+            slot_col.extend(column + np.arange(bs))
             zero_pos.extend(offset + index[:, 1:].ravel())
-            self._grid_names.append(name)
+            column += bs
         as_int = lambda a: np.asarray(a, dtype=np.int64)  # noqa: E731
-        return (as_int(slot_pos), as_int(slot_function), as_int(slot_col), as_int(zero_pos)), as_int(particle)
+        return (as_int(slot_pos), as_int(slot_col), as_int(zero_pos)), as_int(particle)
 
     def particle_slots(self) -> np.ndarray:
         """Positions of the particle fields in the packed coefficients."""
