@@ -38,7 +38,7 @@ __all__ = [
     "assemble_vector",
     "assemble_vector_lumped",
     "jets_at_particles",
-    "pack_jets",
+    "pack_coefficients",
     "particle_jets",
     "side_by_side",
 ]
@@ -483,14 +483,19 @@ def assemble_scalar(kernel, x, weight, coeffs, consts, h):
 
 
 @numba.njit(cache=True)
-def pack_jets(phi, lfun, values, index, zero, out):
-    """``out[p, index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``: the jets of grid functions
-    (their coefficients side by side in ``values``) at the particles, written where a form's kernel
-    reads them; ``out[p, zero] = 0`` (the jets of functions known to be zero)."""
+def pack_coefficients(phi, lfun, values, index, zero, fields, field_offsets, out):
+    """A form's coefficients at the particles, row ``p`` of ``out`` where its kernel reads them: the particle
+    fields (``fields[k]``, ``(n, size)``, from column ``field_offsets[k]``); the jets of grid functions (their
+    coefficients side by side in ``values``), ``out[p, index[c, a]] = sum_l phi[p, a, l] * values[lfun[p, l], c]``;
+    and ``out[p, zero] = 0`` (the jets of functions known to be zero)."""
     n, nq, nl = phi.shape
     bs = values.shape[1]
     jets = np.empty((nq, bs))
     for p in range(n):
+        for k in range(field_offsets.shape[0]):
+            field = fields[k]
+            for c in range(field.shape[1]):
+                out[p, field_offsets[k] + c] = field[p, c]
         for k in range(zero.shape[0]):
             out[p, zero[k]] = 0.0
         particle_jets(phi[p], lfun[p], values, jets)

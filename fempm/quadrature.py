@@ -82,6 +82,8 @@ _JIT_OPTIONS = {"cffi_extra_compile_args": ["-O3", "-march=native", "-ffp-contra
 _REGULAR, _LUMPED, _FIXED = 0, 1, 2  # subdomain ids of s.dx, s.dx_lumped and s.dx_fixed on the jet cell
 _ffi = FFI()
 _NO_VALUES = np.zeros((1, 0))  # the coefficients of no grid function (all are zero): no jets to take
+_NO_SLOTS, _NO_COLUMNS = np.zeros((0, 0), dtype=np.int64), np.zeros(0, dtype=np.int64)  # nowhere to write them
+_NO_FIELDS = (np.zeros((0, 1)),)  # a form without particle fields: nothing to copy
 
 
 # --------------------------------------------------------------------------------------
@@ -371,6 +373,7 @@ class _Coefficients:
         self.width = max(offset, 1)  # as wide as what pack returns
         self._nodal_positions, self._particle_slots = self._positions()
         self._particle_parts = [(name, offset, size) for kind, name, offset, size, _ in self._parts if kind == "particle"]
+        self._field_offsets = np.array([offset for _, offset, _ in self._particle_parts], dtype=np.int64)
         self._grid_parts = [(name, offset + index) for kind, name, offset, _, index in self._parts if kind != "particle"]
         self._jet_slots = {}  # which grid functions are non-zero -> (their slots, the zero ones' columns in pack)
 
@@ -382,15 +385,16 @@ class _Coefficients:
         if not self._parts:
             return np.zeros((n, 1))
         out = np.empty((n, self.width))
-        for name, offset, size in self._particle_parts:
-            out[:, offset: offset + size] = particles[name].reshape(n, size)
-        if not self._grid_parts:
-            return out
-        values = tuple(self.grid_functions[name].values for name, _ in self._grid_parts)
-        nonzero = assembly.nonzero_arrays(values)
-        slots, zero = self._slots_of(nonzero)
-        kept = assembly.side_by_side(v for v, keep in zip(values, nonzero) if keep) if slots.size else _NO_VALUES
-        assembly.pack_jets(phi, lfun, kept, slots, zero, out)
+        fields = tuple(np.ascontiguousarray(particles[name].reshape(n, size))
+                       for name, _, size in self._particle_parts) or _NO_FIELDS
+        slots, zero, kept = _NO_SLOTS, _NO_COLUMNS, _NO_VALUES
+        if self._grid_parts:
+            values = tuple(self.grid_functions[name].values for name, _ in self._grid_parts)
+            nonzero = assembly.nonzero_arrays(values)
+            slots, zero = self._slots_of(nonzero)
+            if slots.size:
+                kept = assembly.side_by_side(v for v, keep in zip(values, nonzero) if keep)
+        assembly.pack_coefficients(phi, lfun, kept, slots, zero, fields, self._field_offsets, out)
         return out
 
     def _slots_of(self, nonzero: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -399,8 +403,8 @@ class _Coefficients:
         if key not in self._jet_slots:
             slots = [index for (_, index), keep in zip(self._grid_parts, nonzero) if keep]
             zero = [index.ravel() for (_, index), keep in zip(self._grid_parts, nonzero) if not keep]
-            self._jet_slots[key] = (np.concatenate(slots) if slots else np.zeros((0, 0), dtype=np.int64),
-                                    np.concatenate(zero) if zero else np.zeros(0, dtype=np.int64))
+            self._jet_slots[key] = (np.concatenate(slots) if slots else _NO_SLOTS,
+                                    np.concatenate(zero) if zero else _NO_COLUMNS)
         return self._jet_slots[key]
 
     def nodal_slots(self):
