@@ -10,7 +10,6 @@ grid-scale velocity mode grows in resting water: the case checks that the transf
 
 from __future__ import annotations
 
-import numpy as np
 from mpi4py import MPI
 
 from fempm import diagnostics
