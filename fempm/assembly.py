@@ -47,9 +47,9 @@ __all__ = [
 
 @intrinsic
 def _tabulate(typingctx, kernel, A, w, c, coords):
-    """FFCx's ``tabulate_tensor(A, w, c, coords, NULL, NULL, NULL)``, the kernel given by its address (an
-    integer, :attr:`fempm.quadrature.ParticleForm` keeps them): a ctypes function as an argument would be
-    converted at every call of a loop, a microsecond or two each."""
+    """FFCx's ``tabulate_tensor(A, w, c, coords, NULL, NULL, NULL)`` of the kernel at address ``kernel`` (an
+    integer, as :class:`fempm.quadrature.ParticleForm` keeps its kernels): a ctypes function passed to a compiled
+    loop would be converted at every call of it."""
     if not (isinstance(kernel, types.Integer) and all(isinstance(a, types.Array) for a in (A, w, c, coords))):
         return None
 

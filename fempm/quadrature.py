@@ -494,7 +494,8 @@ class ParticleForm:
         self.rank = len(form.arguments())
         self._compiled = dolfinx.fem.form(form, jit_options=_JIT_OPTIONS)
         ufcx = self._compiled.ufcx_form
-        self._kernels = {}  # subdomain id -> address of the kernel of the regular, the lumped and the fixed points' integral
+        # subdomain id -> address of the kernel of the regular, the lumped and the fixed points' integral
+        self._kernels = {}
         for i in range(ufcx.form_integral_offsets[0], ufcx.form_integral_offsets[1]):
             address = int(_ffi.cast("intptr_t", ufcx.form_integrals[i].tabulate_tensor_float64))
             self._kernels[ufcx.form_integral_ids[i]] = address

@@ -160,7 +160,7 @@ class GridSystem:
         self._R = self.space.create_vector()
         self._R_values = vector_values(self._R)
         self._rows_marked = GridFunction(self.scalar_space, "reaction_rows")  # see _adding_to
-        self._delta, self._delta_of = None, None
+        self._delta, self._delta_of, self._delta_values = None, None, None  # the solve's increment, its matrix, view
         self._excess, self._excess_assembled = None, False  # the wall force excess of the solve's pass
         self._end = None  # end_state's arrays
         self._touching_of = (None, None)  # (rows, their functions): _touching_rows
