@@ -189,11 +189,13 @@ class SolveFailed(RuntimeError):
     """The linear solve did not succeed (singular factorisation, no convergence, NaN)."""
 
 
-def _check(reason: int, solution: np.ndarray):
-    """Raise :class:`SolveFailed` if the KSP's converged ``reason`` is a failure or the solution is not finite."""
+def _check(reason: int, solution: np.ndarray, comm):
+    """Raise :class:`SolveFailed` on every rank of ``comm`` if the KSP's converged ``reason`` is a failure or the
+    solution is not finite on some rank (one rank raising alone would leave the others in the step's next
+    collective call)."""
     if reason < 0:
         raise SolveFailed(f"linear solve failed: {_REASONS.get(reason, reason)}")
-    if not np.all(np.isfinite(solution)):
+    if not collective.all_ranks(comm, bool(np.all(np.isfinite(solution)))):
         raise SolveFailed("linear solve produced non-finite values (singular matrix?)")
 
 
@@ -359,7 +361,7 @@ class LinearSolver:
         if reason < 0 and self.exact_schur:
             reason = self._solve_by_lu(free_block(), b_free, x_free)
         b.restoreSubVector(index_set, b_free)
-        _check(reason, x_free.getArray(readonly=True))
+        _check(reason, x_free.getArray(readonly=True), self.comm)
         if x is None:
             x = b.duplicate()
         x.zeroEntries()
@@ -464,7 +466,7 @@ class LinearSolver:
             values[free] = x_sub.getArray(readonly=True)
         else:
             blocks.extend(x_free.getArray(readonly=True), values)
-        _check(reason, values)
+        _check(reason, values, self.comm)
         if x is None:
             x = b.duplicate()
         x.setArray(values)

@@ -220,7 +220,7 @@ class GridSystem:
                 u[: self.space.num_owned_dofs] += self._delta_values
                 U.scatter_forward()
             self.newton_iterations += 1
-            if not _all_finite(u):
+            if not collective.all_ranks(self.comm, _all_finite(u)):  # every rank raises, or none
                 raise SolveFailed("the solution is not finite")
             if forms.linear:
                 break

@@ -289,3 +289,13 @@ def test_a_users_tolerance_holds_at_every_size(monkeypatch):
     _, solver = _one_step(MPI.COMM_SELF, petsc={"ksp_rtol": 1e-12})
     assert solver.ksp.getPC().getFieldSplitSubKSP()[1].getPC().getType() == "gamg"
     assert solver.ksp.getTolerances()[0] == 1e-12
+
+
+@pytest.mark.mpi
+def test_a_solution_not_finite_on_one_rank_fails_the_solve_on_every_rank():
+    """A non-finite value on one rank stops the solve on all of them: a rank raising alone would leave the others
+    waiting in the step's next collective call (under ``mpirun -n 2`` only rank 0's solution holds a NaN)."""
+    comm = MPI.COMM_WORLD
+    with pytest.raises(linear.SolveFailed, match="non-finite"):
+        linear._check(0, np.array([1.0, np.nan if comm.rank == 0 else 2.0]), comm)
+    linear._check(0, np.ones(2), comm)  # finite on every rank: no failure
